@@ -1,0 +1,13 @@
+// The reference backend as a policy: every stage type a pipeline templated on a Backend needs.
+#pragma once
+
+#include "perch2/cpu/render.hpp"
+
+namespace perch2::cpu {
+
+struct Backend {
+  static constexpr const char* name = "cpu";
+  using Renderer = cpu::Renderer;
+};
+
+}  // namespace perch2::cpu

@@ -1,0 +1,109 @@
+// Reference batch renderer: hypotheses in parallel (OpenMP), each with a private z-buffer over its ROI.
+#include "perch2/cpu/render.hpp"
+
+#include <omp.h>
+
+#include <algorithm>
+
+#include "perch2/render/mesh_arrays.hpp"
+#include "perch2/render/raster.hpp"
+
+namespace perch2::cpu {
+namespace {
+
+/// One hypothesis' visible samples, in raster order of the stride grid.
+struct LocalCloud {
+  std::vector<RenderedSample> samples;
+};
+
+/// Scratch reused by one thread across hypotheses (no per-hypothesis frame allocation).
+struct Scratch {
+  std::vector<DepthTriangle> zbuf;
+  std::vector<Vec3f> verts_cam;
+  std::vector<GridSpan> spans;
+};
+
+void render_one(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label, const Intrinsics& K,
+                const RenderSettings& s, const OccluderView& occ, Scratch& scratch, LocalCloud& out) {
+  out.samples.clear();
+  const GridRoi roi = model_roi(m, T_cam_obj, K, s.stride, s.near_m);
+  if (roi.size() == 0) return;
+  scratch.verts_cam.resize(std::size_t(m.num_vertices));
+  scratch.spans.resize(std::size_t(m.num_vertices));
+  for (int k = 0; k < m.num_vertices; ++k)
+    pose_vertex(m, T_cam_obj, K, s.stride, s.near_m, k, scratch.verts_cam.data(), scratch.spans.data());
+  const PosedVertices posed{scratch.verts_cam.data(), scratch.spans.data()};
+  scratch.zbuf.assign(std::size_t(roi.size()), kEmptyPixel);
+  DepthTriangle* zbuf = scratch.zbuf.data();
+  for (int tri = 0; tri < m.num_triangles; ++tri)
+    rasterize_triangle(m, posed, tri, K, s.stride, s.near_m, roi, s.cull_back_faces,
+                       [zbuf](int idx, DepthTriangle w) { zbuf[idx] = std::min(zbuf[idx], w); });
+  for (int j = 0; j < roi.height; ++j)
+    for (int i = 0; i < roi.width; ++i) {
+      RenderedSample sample;
+      if (resolve_sample(m, scratch.verts_cam.data(), zbuf[j * roi.width + i], K, s.stride, roi.i0 + i,
+                         roi.j0 + j, occ, label, sample))
+        out.samples.push_back(sample);
+    }
+}
+
+}  // namespace
+
+struct Renderer::Impl {
+  std::vector<MeshArrays> meshes;
+  std::vector<MeshView> views;
+};
+
+Renderer::Renderer(std::vector<Mesh> models) : impl_(std::make_unique<Impl>()) {
+  validate_models(models);
+  impl_->meshes.reserve(models.size());
+  for (auto& mesh : models) impl_->meshes.emplace_back(std::move(mesh));
+  for (const auto& arrays : impl_->meshes) impl_->views.push_back(arrays.host_view());
+}
+Renderer::~Renderer() = default;
+Renderer::Renderer(Renderer&&) noexcept = default;
+Renderer& Renderer::operator=(Renderer&&) noexcept = default;
+std::size_t Renderer::num_models() const {
+  return impl_->meshes.size();
+}
+
+CloudBatch Renderer::render(const std::vector<Hypothesis>& hypotheses, const Intrinsics& camera,
+                            const RenderSettings& settings, const Occluders* occluders) const {
+  validate_render_request(hypotheses, impl_->meshes.size(), camera, settings, occluders);
+  OccluderView occ;
+  if (occluders) {
+    occ.depth_m = occluders->depth_m.data.data();
+    occ.labels = occluders->labels.empty() ? nullptr : occluders->labels.data.data();
+    occ.margin_m = settings.occlusion_margin_m;
+  }
+  const int n = int(hypotheses.size());
+  std::vector<Rigid3f> T(static_cast<std::size_t>(n));
+  for (int h = 0; h < n; ++h) T[h] = to_rigid(hypotheses[h].T_cam_obj);
+
+  CloudBatch batch;
+  batch.offsets.assign(std::size_t(n) + 1, 0);
+  constexpr int kChunk = 256;  // bounds the per-hypothesis outputs held before they are appended
+  std::vector<LocalCloud> local(std::size_t(std::min(n, kChunk)));
+  std::vector<Scratch> scratch(static_cast<std::size_t>(omp_get_max_threads()));
+  for (int begin = 0; begin < n; begin += kChunk) {
+    const int end = std::min(n, begin + kChunk);
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int h = begin; h < end; ++h)
+      render_one(impl_->views[hypotheses[h].model], T[h], hypotheses[h].label, camera, settings, occ,
+                 scratch[omp_get_thread_num()], local[h - begin]);
+    for (int h = begin; h < end; ++h) {
+      const auto& samples = local[h - begin].samples;
+      const std::size_t at = batch.size();
+      batch.resize(at + samples.size());
+      for (std::size_t k = 0; k < samples.size(); ++k) {
+        batch.x[at + k] = samples[k].p_cam.x, batch.y[at + k] = samples[k].p_cam.y;
+        batch.z[at + k] = samples[k].p_cam.z, batch.rgb[at + k] = samples[k].rgb;
+        batch.pixel[at + k] = samples[k].pixel, batch.cloud[at + k] = h;
+      }
+      batch.offsets[h + 1] = std::int64_t(batch.size());
+    }
+  }
+  return batch;
+}
+
+}  // namespace perch2::cpu

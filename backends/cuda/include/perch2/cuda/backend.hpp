@@ -1,0 +1,22 @@
+// The Thrust backend as a policy, once per device system (see system.hpp).
+#pragma once
+
+#include "perch2/cuda/render.hpp"
+#include "perch2/cuda/system.hpp"
+
+namespace perch2::thrust_backend {
+
+template <class System>
+struct Backend {
+  static constexpr const char* name = System::name;
+  using Renderer = thrust_backend::Renderer<System>;
+};
+
+}  // namespace perch2::thrust_backend
+
+namespace perch2::cuda {
+using Backend = thrust_backend::Backend<thrust_backend::CudaSystem>;
+}
+namespace perch2::thrust_omp {
+using Backend = thrust_backend::Backend<thrust_backend::OmpSystem>;
+}

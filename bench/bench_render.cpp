@@ -1,0 +1,129 @@
+// Render throughput and peak memory: 2,000 poses of a ~10k-triangle mesh, 640x480, strides 1/4/8, per
+// backend.
+//   bench_render [--runs N] [--poses N] [--model FILE --scale S]
+// Default mesh: a procedural 10,224-triangle lumpy sphere with vertex colours (always available); with
+// ../shared/data present the YCB banana (15,728 triangles, 4096^2 texture) is measured too.
+#include <omp.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <random>
+#include <string>
+
+#include "bench_support.hpp"
+#include "perch2/cpu/backend.hpp"
+#include "perch2/cuda/backend.hpp"
+#include "perch2/io/io.hpp"
+
+using namespace perch2;
+
+namespace {
+
+Mesh lumpy_sphere(float radius_m, int rings, int segments) {
+  Mesh m;
+  m.name = "lumpy sphere";
+  const float pi = 3.14159265f;
+  for (int i = 0; i <= rings; ++i)
+    for (int j = 0; j < segments; ++j) {
+      const float th = pi * i / rings, ph = 2 * pi * j / segments;
+      const float r = radius_m * (1.f + 0.1f * std::sin(5 * ph) * std::sin(3 * th));
+      m.vertices.emplace_back(r * std::sin(th) * std::cos(ph), r * std::sin(th) * std::sin(ph),
+                              r * std::cos(th));
+      m.vertex_colors.push_back(
+          {std::uint8_t(128 + 100 * std::sin(th)), std::uint8_t(128 + 100 * std::cos(ph)), 90});
+    }
+  auto at = [&](int i, int j) { return i * segments + (j % segments); };
+  for (int i = 0; i < rings; ++i)
+    for (int j = 0; j < segments; ++j) {
+      m.triangles.emplace_back(at(i, j), at(i + 1, j), at(i + 1, j + 1));
+      m.triangles.emplace_back(at(i, j), at(i + 1, j + 1), at(i, j + 1));
+    }
+  return m;
+}
+
+/// Tabletop-like poses: 0.5-1.0 m away, anywhere in the central part of the view, any rotation.
+std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
+  std::mt19937 rng(42);
+  std::uniform_real_distribution<float> u(-1.f, 1.f), z(0.5f, 1.0f);
+  std::normal_distribution<float> g(0.f, 1.f);
+  const Eigen::Vector3f centre = mesh.bounds().center();
+  std::vector<Hypothesis> out;
+  for (int k = 0; k < n; ++k) {
+    Pose T = Pose::Identity();
+    T.linear() = Eigen::Quaternionf(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+    const float depth = z(rng);
+    T.translation() =
+        Eigen::Vector3f(0.25f * depth * u(rng), 0.2f * depth * u(rng), depth) - T.linear() * centre;
+    out.push_back({0, T});
+  }
+  return out;
+}
+
+template <class Renderer>
+void measure(const char* backend, const Mesh& mesh, const std::vector<Hypothesis>& hyps, int runs,
+             double reference_rate[3]) {
+  const Intrinsics K{615.f, 615.f, 319.5f, 239.5f, 640, 480};
+  const int strides[3] = {1, 4, 8};
+  for (int k = 0; k < 3; ++k) {
+    RenderSettings s;
+    s.stride = strides[k];
+    const auto [seconds, points, peak_mib] = bench::in_child([&]() -> std::array<double, 2> {
+      const Renderer renderer({mesh});
+      std::size_t n = 0;
+      const double t = bench::median_seconds(runs, [&] { n = renderer.render(hyps, K, s).size(); });
+      return {t, double(n)};
+    });
+    const double rate = double(hyps.size()) / seconds;
+    if (reference_rate[k] == 0) reference_rate[k] = rate;
+    std::printf("| %-10s | %6d | %12.0f | %8.2fx | %10.0f | %9.0f |\n", backend, strides[k], rate,
+                rate / reference_rate[k], double(points) / double(hyps.size()), peak_mib);
+    std::fflush(stdout);
+  }
+}
+
+void run(const Mesh& mesh, int num_poses, int runs) {
+  const auto hyps = poses(num_poses, mesh);
+  std::printf("\n%s: %zu triangles, %s, %d poses, 640x480, median of %d runs\n\n", mesh.name.c_str(),
+              mesh.triangles.size(), mesh.has_texture() ? "textured" : "vertex colours", num_poses, runs);
+  std::printf("| backend    | stride | hypotheses/s | vs cpu   | points/hyp | peak MiB* |\n");
+  std::printf("|------------|--------|--------------|----------|------------|-----------|\n");
+  double reference[3] = {0, 0, 0};
+  measure<cpu::Renderer>("cpu", mesh, hyps, runs, reference);
+  measure<thrust_omp::Backend::Renderer>("thrust_omp", mesh, hyps, runs, reference);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int runs = 5, num_poses = 2000;
+  std::string model;
+  float scale = 1.f;
+  for (int k = 1; k + 1 < argc; k += 2) {
+    const std::string a = argv[k];
+    if (a == "--runs")
+      runs = std::stoi(argv[k + 1]);
+    else if (a == "--poses")
+      num_poses = std::stoi(argv[k + 1]);
+    else if (a == "--model")
+      model = argv[k + 1];
+    else if (a == "--scale")
+      scale = std::stof(argv[k + 1]);
+  }
+  std::printf("bench_render on %s, %d threads\n", bench::cpu_model().c_str(), omp_get_max_threads());
+  std::printf(
+      "* peak MiB: growth of the process' peak RSS while building the renderer and rendering (own "
+      "process)\n");
+  run(lumpy_sphere(0.06f, 71, 72), num_poses, runs);
+  const std::string banana =
+      model.empty() ? std::string(PERCH2_SHARED_DATA_DIR) + "/models/ycb_011_banana/textured_simple.obj"
+                    : model;
+  if (std::filesystem::exists(banana)) {
+    io::MeshLoadOptions options;
+    options.scale = scale;
+    run(io::load_mesh(banana, options), num_poses, runs);
+  } else {
+    std::printf("\n(%s not found: real-mesh rows skipped)\n", banana.c_str());
+  }
+  return 0;
+}

@@ -1,0 +1,75 @@
+// Benchmark helpers: medians, peak memory of a configuration measured in a child process, machine name.
+#pragma once
+
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace perch2::bench {
+
+inline double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+}
+
+/// Median wall time (seconds) of `runs` calls of f after one warm-up call.
+inline double median_seconds(int runs, const std::function<void()>& f) {
+  f();
+  std::vector<double> t;
+  for (int r = 0; r < runs; ++r) {
+    const auto t0 = std::chrono::steady_clock::now();
+    f();
+    t.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  return median(t);
+}
+
+inline std::string cpu_model() {
+  std::ifstream f("/proc/cpuinfo");
+  for (std::string line; std::getline(f, line);)
+    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
+  return "unknown CPU";
+}
+
+/// A field of /proc/self/status in KiB (VmRSS: resident now, VmHWM: peak resident).
+inline long status_kb(const char* field) {
+  std::ifstream f("/proc/self/status");
+  const std::string key = std::string(field) + ":";
+  for (std::string line; std::getline(f, line);)
+    if (line.rfind(key, 0) == 0) return std::stol(line.substr(key.size()));
+  return 0;
+}
+
+/// Runs f in a forked child; returns f's two results and the child's peak resident memory (VmHWM, MiB),
+/// which includes what the parent held at the fork. Each configuration gets its own process so one
+/// configuration's peak does not hide another's.
+inline std::array<double, 3> in_child(const std::function<std::array<double, 2>()>& f) {
+  int fd[2];
+  if (pipe(fd) != 0) return {0, 0, 0};
+  const pid_t pid = fork();
+  if (pid == 0) {
+    close(fd[0]);
+    const std::array<double, 2> r = f();
+    const std::array<double, 3> out{r[0], r[1], double(status_kb("VmHWM")) / 1024.0};
+    (void)!write(fd[1], out.data(), sizeof(out));
+    _exit(0);
+  }
+  close(fd[1]);
+  std::array<double, 3> in{0, 0, 0};
+  (void)!read(fd[0], in.data(), sizeof(in));
+  close(fd[0]);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  return in;
+}
+
+}  // namespace perch2::bench

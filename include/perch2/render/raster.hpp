@@ -1,0 +1,324 @@
+// Device-callable rasterisation kernels shared by every backend (the algorithm text lives once).
+//
+// Homogeneous rasterisation (Olano & Greer 1997): each triangle (a, b, c) in the camera frame gets three
+// edge planes through the camera centre, n_a = b x c, n_b = c x a, n_c = a x b. A pixel ray d = (x, y, 1)
+// hits the triangle iff all E_k = n_k . d have the sign of det = a . (b x c); then the hit depth is
+// z = det / sum(E_k) and the perspective-correct barycentrics are E_k / sum(E_k). No screen-space clipping
+// is needed: triangles crossing the near plane are handled per sample (z >= near).
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+
+#include "perch2/core/camera.hpp"
+#include "perch2/core/device.hpp"
+
+namespace perch2 {
+
+/// A model as the kernels see it: flat arrays (host or device memory) owned by the backend.
+struct MeshView {
+  const Vec3f* vertices = nullptr;          ///< object frame, metres
+  const std::int32_t* triangles = nullptr;  ///< 3 vertex indices per triangle
+  const Rgb8* vertex_colors = nullptr;      ///< null, or one per vertex
+  const Vec2f* corner_uvs = nullptr;        ///< null, or 3 per triangle
+  const Rgb8* texture = nullptr;            ///< null, or texture_width x texture_height, top row first
+  int num_vertices = 0, num_triangles = 0;
+  int texture_width = 0, texture_height = 0;
+  Rgb8 base_color{200, 200, 200};
+  Vec3f box_min{0, 0, 0}, box_max{0, 0, 0};  ///< object-frame bounds
+};
+
+/// Axis-aligned block of the stride grid: samples (i, j) with i0 <= i < i0 + width, j0 <= j < j0 + height.
+struct GridRoi {
+  int i0 = 0, j0 = 0, width = 0, height = 0;
+  PERCH2_HD int size() const { return width * height; }
+};
+
+/// The z-buffer word: depth bits (positive floats order like their bit patterns) above the triangle id,
+/// so one 64-bit atomic min keeps the nearest surface and breaks exact ties by the smaller triangle id.
+using DepthTriangle = std::uint64_t;
+constexpr DepthTriangle kEmptyPixel = ~DepthTriangle(0);
+
+PERCH2_HD inline std::uint32_t float_bits(float f) {
+  union {
+    float f;
+    std::uint32_t u;
+  } x{f};
+  return x.u;
+}
+PERCH2_HD inline float bits_float(std::uint32_t u) {
+  union {
+    std::uint32_t u;
+    float f;
+  } x{u};
+  return x.f;
+}
+PERCH2_HD inline DepthTriangle pack_depth_triangle(float depth_m, std::uint32_t triangle) {
+  return (DepthTriangle(float_bits(depth_m)) << 32) | triangle;
+}
+PERCH2_HD inline float unpack_depth(DepthTriangle w) {
+  return bits_float(std::uint32_t(w >> 32));
+}
+PERCH2_HD inline std::uint32_t unpack_triangle(DepthTriangle w) {
+  return std::uint32_t(w & 0xFFFFFFFFu);
+}
+
+/// Ray (z = 1) through full-resolution pixel (u, v) = (stride * i, stride * j): the same float operations
+/// at every stride, so a stride-s render equals the full-resolution one sampled at multiples of s.
+PERCH2_HD inline Vec3f grid_ray(const Intrinsics& K, int stride, int i, int j) {
+  return K.ray(float(stride * i), float(stride * j));
+}
+
+/// Conservative float -> grid index conversions that never overflow int.
+PERCH2_HD inline int grid_floor(float u_px, float inv_stride) {
+  return floor_int(min_f(max_f(u_px * inv_stride, -1e8f), 1e8f));
+}
+PERCH2_HD inline int grid_ceil(float u_px, float inv_stride) {
+  return ceil_int(min_f(max_f(u_px * inv_stride, -1e8f), 1e8f));
+}
+
+/// Screen bounds of camera-frame points, in full-resolution pixels.
+struct PixelBounds {
+  float u0 = 1e30f, v0 = 1e30f, u1 = -1e30f, v1 = -1e30f;
+  PERCH2_HD void add(Vec2f q) {
+    u0 = min_f(u0, q.x), v0 = min_f(v0, q.y), u1 = max_f(u1, q.x), v1 = max_f(v1, q.y);
+  }
+  PERCH2_HD void add(const Intrinsics& K, Vec3f p) { add(K.project(p)); }
+  PERCH2_HD bool empty() const { return u0 > u1 || v0 > v1; }
+};
+
+/// Grid samples inside `bounds` (widened by a small epsilon) and inside `clip`.
+PERCH2_HD inline GridRoi grid_cover(const PixelBounds& b, int stride, const GridRoi& clip) {
+  constexpr float kEps = 1e-3f;  // pixels; bounds are a superset filter, the edge test is exact
+  GridRoi r;
+  if (b.empty()) return r;
+  const float inv = 1.f / float(stride);
+  const int i0 = max_int(grid_ceil(b.u0 - kEps, inv), clip.i0);
+  const int j0 = max_int(grid_ceil(b.v0 - kEps, inv), clip.j0);
+  const int i1 = min_int(grid_floor(b.u1 + kEps, inv), clip.i0 + clip.width - 1);
+  const int j1 = min_int(grid_floor(b.v1 + kEps, inv), clip.j0 + clip.height - 1);
+  if (i1 < i0 || j1 < j0) return r;
+  return {i0, j0, i1 - i0 + 1, j1 - j0 + 1};
+}
+
+/// The part of the stride grid a posed model can cover: its transformed bounding box, projected.
+PERCH2_HD inline GridRoi model_roi(const MeshView& m, const Rigid3f& T_cam_obj, const Intrinsics& K,
+                                   int stride, float near_m) {
+  const GridRoi full{0, 0, K.grid_width(stride), K.grid_height(stride)};
+  PixelBounds b;
+  int in_front = 0;
+  for (int k = 0; k < 8; ++k) {
+    const Vec3f p_obj{(k & 1) ? m.box_max.x : m.box_min.x, (k & 2) ? m.box_max.y : m.box_min.y,
+                      (k & 4) ? m.box_max.z : m.box_min.z};
+    const Vec3f p = T_cam_obj * p_obj;
+    if (p.z >= near_m) ++in_front, b.add(K, p);
+  }
+  if (in_front == 0) return GridRoi{};
+  if (in_front < 8) return full;  // box crosses the near plane: its projection is unbounded
+  return grid_cover(b, stride, full);
+}
+
+/// Per-triangle set-up: sign-normalised edge planes, |det| and the grid samples to test.
+struct TriangleRaster {
+  Vec3f n[3];
+  float det = 0;
+  GridRoi cover;
+};
+
+/// The grid samples a projected vertex bounds from each side: i_lo = ceil((u - eps) / s), i_hi =
+/// floor((u + eps) / s) (likewise j), clamped to [-1, grid size]. A triangle's samples lie within the min of
+/// its corners' lo and the max of their hi, so the per-triangle bound needs integer min/max only.
+/// 16-bit (grids are at most 32767 samples wide); i_lo = kBehindNear marks a vertex nearer than the near
+/// plane.
+struct GridSpan {
+  std::int16_t i_lo, i_hi, j_lo, j_hi;
+};
+constexpr std::int16_t kBehindNear = -32768;
+constexpr int kMaxGridSize = 32767;
+
+PERCH2_HD inline GridSpan grid_span(Vec2f px, const Intrinsics& K, int stride) {
+  constexpr float kEps = 1e-3f;  // pixels; bounds are a superset filter, the edge test is exact
+  const float inv = 1.f / float(stride);
+  const float gw = float(K.grid_width(stride)), gh = float(K.grid_height(stride));
+  auto clamp = [](float g, float hi) { return min_f(max_f(g, -1.f), hi); };
+  return {std::int16_t(ceil_int(clamp((px.x - kEps) * inv, gw))),
+          std::int16_t(floor_int(clamp((px.x + kEps) * inv, gw))),
+          std::int16_t(ceil_int(clamp((px.y - kEps) * inv, gh))),
+          std::int16_t(floor_int(clamp((px.y + kEps) * inv, gh)))};
+}
+
+PERCH2_HD inline int min3(int a, int b, int c) {
+  return min_int(min_int(a, b), c);
+}
+PERCH2_HD inline int max3(int a, int b, int c) {
+  return max_int(max_int(a, b), c);
+}
+
+/// Returns false if the triangle covers no sample of `roi` (degenerate, culled, behind the near plane).
+/// `sa, sb, sc` are the corners' grid spans (used when all corners are in front of the near plane).
+PERCH2_HD inline bool setup_triangle(const Vec3f* p_cam, const std::int32_t* f, const GridSpan& sa,
+                                     const GridSpan& sb, const GridSpan& sc, const Intrinsics& K, int stride,
+                                     float near_m, const GridRoi& roi, bool cull_back_faces,
+                                     TriangleRaster& t) {
+  // Cheapest test first: at stride >= 2 most triangles of a model contain no grid sample at all.
+  const int i_lo = min3(sa.i_lo, sb.i_lo, sc.i_lo);
+  if (i_lo != kBehindNear) {
+    const int i0 = max_int(i_lo, roi.i0);
+    const int i1 = min_int(max3(sa.i_hi, sb.i_hi, sc.i_hi), roi.i0 + roi.width - 1);
+    const int j0 = max_int(min3(sa.j_lo, sb.j_lo, sc.j_lo), roi.j0);
+    const int j1 = min_int(max3(sa.j_hi, sb.j_hi, sc.j_hi), roi.j0 + roi.height - 1);
+    if (i1 < i0 || j1 < j0) return false;
+    t.cover = {i0, j0, i1 - i0 + 1, j1 - j0 + 1};
+  } else {
+    PixelBounds bounds;
+    const Vec3f v[3] = {p_cam[f[0]], p_cam[f[1]], p_cam[f[2]]};
+    for (int k = 0; k < 3; ++k) {  // clip the polygon against z >= near, projecting what remains
+      const Vec3f p = v[k], q = v[(k + 1) % 3];
+      if (p.z >= near_m) bounds.add(K, p);
+      if ((p.z >= near_m) != (q.z >= near_m)) {
+        const float w = (near_m - p.z) / (q.z - p.z);
+        Vec3f x = p + w * (q - p);
+        x.z = near_m;
+        bounds.add(K, x);
+      }
+    }
+    t.cover = grid_cover(bounds, stride, roi);
+    if (t.cover.size() == 0) return false;
+  }
+  const Vec3f a = p_cam[f[0]], b = p_cam[f[1]], c = p_cam[f[2]];
+  const Vec3f na = cross(b, c);
+  const float det = dot(a, na);
+  // det < 0: counter-clockwise winding faces the camera (outward normal points at the origin).
+  if (det == 0.f || !(det == det) || (cull_back_faces && det > 0.f)) return false;
+  const float s = det < 0.f ? -1.f : 1.f;
+  t.n[0] = s * na, t.n[1] = s * cross(c, a), t.n[2] = s * cross(a, b), t.det = s * det;
+  return true;
+}
+
+/// Edge-function test of one ray: on a hit, the depth (z, metres) of the triangle along it.
+PERCH2_HD inline bool sample_triangle(const TriangleRaster& t, Vec3f ray, float near_m, float& depth_m) {
+  const float e0 = dot(t.n[0], ray), e1 = dot(t.n[1], ray), e2 = dot(t.n[2], ray);
+  if (e0 < 0.f || e1 < 0.f || e2 < 0.f) return false;
+  const float sum = e0 + e1 + e2;
+  if (!(sum > 0.f)) return false;
+  depth_m = t.det / sum;
+  return depth_m >= near_m;
+}
+
+PERCH2_HD inline std::uint8_t to_u8(float c) {
+  return std::uint8_t(min_f(max_f(c + 0.5f, 0.f), 255.f));
+}
+
+/// Bilinear texture lookup; OBJ convention (v = 0 at the image bottom), repeating outside [0, 1].
+PERCH2_HD inline Rgb8 sample_texture(const MeshView& m, float u, float v) {
+  const float x = (u - floorf(u)) * float(m.texture_width) - 0.5f;
+  const float y = (1.f - (v - floorf(v))) * float(m.texture_height) - 0.5f;
+  const float xf = floorf(x), yf = floorf(y);
+  const float wx = x - xf, wy = y - yf;
+  const int W = m.texture_width, H = m.texture_height;
+  const int x0 = ((int(xf) % W) + W) % W, y0 = ((int(yf) % H) + H) % H;
+  const int x1 = (x0 + 1) % W, y1 = (y0 + 1) % H;
+  const Rgb8 c00 = m.texture[y0 * W + x0], c10 = m.texture[y0 * W + x1];
+  const Rgb8 c01 = m.texture[y1 * W + x0], c11 = m.texture[y1 * W + x1];
+  auto mix = [&](float p00, float p10, float p01, float p11) {
+    return to_u8((1 - wy) * ((1 - wx) * p00 + wx * p10) + wy * ((1 - wx) * p01 + wx * p11));
+  };
+  return {mix(c00.r, c10.r, c01.r, c11.r), mix(c00.g, c10.g, c01.g, c11.g), mix(c00.b, c10.b, c01.b, c11.b)};
+}
+
+/// Colour of triangle `tri` (camera-frame corners a, b, c) where `ray` hits it: texture, else
+/// interpolated vertex colours, else the model's base colour.
+PERCH2_HD inline Rgb8 shade(const MeshView& m, int tri, Vec3f a, Vec3f b, Vec3f c, Vec3f ray) {
+  const float e0 = dot(cross(b, c), ray), e1 = dot(cross(c, a), ray), e2 = dot(cross(a, b), ray);
+  const float inv = 1.f / (e0 + e1 + e2);
+  const float w0 = e0 * inv, w1 = e1 * inv, w2 = e2 * inv;  // perspective-correct barycentrics
+  if (m.texture && m.corner_uvs) {
+    const Vec2f t0 = m.corner_uvs[3 * tri], t1 = m.corner_uvs[3 * tri + 1], t2 = m.corner_uvs[3 * tri + 2];
+    return sample_texture(m, w0 * t0.x + w1 * t1.x + w2 * t2.x, w0 * t0.y + w1 * t1.y + w2 * t2.y);
+  }
+  if (m.vertex_colors) {
+    const std::int32_t* f = m.triangles + 3 * tri;
+    const Rgb8 c0 = m.vertex_colors[f[0]], c1 = m.vertex_colors[f[1]], c2 = m.vertex_colors[f[2]];
+    return {to_u8(w0 * c0.r + w1 * c1.r + w2 * c2.r), to_u8(w0 * c0.g + w1 * c1.g + w2 * c2.g),
+            to_u8(w0 * c0.b + w1 * c1.b + w2 * c2.b)};
+  }
+  return m.base_color;
+}
+
+/// A posed model's vertices: camera frame, and their grid spans (meaningful where z >= near).
+struct PosedVertices {
+  const Vec3f* p_cam;
+  const GridSpan* span;
+};
+
+PERCH2_HD inline void pose_vertex(const MeshView& m, const Rigid3f& T_cam_obj, const Intrinsics& K,
+                                  int stride, float near_m, int k, Vec3f* p_cam, GridSpan* span) {
+  const Vec3f p = T_cam_obj * m.vertices[k];
+  p_cam[k] = p;
+  span[k] = p.z >= near_m ? grid_span(K.project(p), K, stride) : GridSpan{kBehindNear, 0, 0, 0};
+}
+
+/// Rasterise triangle `tri` of a posed model into an ROI z-buffer: calls plot(roi_index, packed_word) for
+/// every covered sample. The backend's plot does the z-test (plain min in the reference, a 64-bit atomic
+/// min in the Thrust backend).
+template <class Plot>
+PERCH2_HD void rasterize_triangle(const MeshView& m, PosedVertices v, int tri, const Intrinsics& K,
+                                  int stride, float near_m, const GridRoi& roi, bool cull_back_faces,
+                                  Plot&& plot) {
+  const std::int32_t* f = m.triangles + 3 * tri;
+  TriangleRaster t;
+  if (!setup_triangle(v.p_cam, f, v.span[f[0]], v.span[f[1]], v.span[f[2]], K, stride, near_m, roi,
+                      cull_back_faces, t))
+    return;
+  for (int j = t.cover.j0; j < t.cover.j0 + t.cover.height; ++j)
+    for (int i = t.cover.i0; i < t.cover.i0 + t.cover.width; ++i) {
+      float depth_m;
+      if (sample_triangle(t, grid_ray(K, stride, i, j), near_m, depth_m))
+        plot((j - roi.j0) * roi.width + (i - roi.i0), pack_depth_triangle(depth_m, std::uint32_t(tri)));
+    }
+}
+
+/// C-PERCH occluder test for a rendered depth at one full-resolution pixel.
+PERCH2_HD inline bool is_occluded(float rendered_depth_m, float observed_depth_m, bool has_labels,
+                                  std::int32_t observed_label, std::int32_t hypothesis_label,
+                                  float margin_m) {
+  if (!(observed_depth_m > 0.f)) return false;  // no reading: cannot occlude
+  if (observed_depth_m >= rendered_depth_m - margin_m) return false;
+  return !has_labels || observed_label != hypothesis_label;
+}
+
+/// Observed images for occluder marking, as raw full-resolution arrays (null: none).
+struct OccluderView {
+  const float* depth_m = nullptr;
+  const std::int32_t* labels = nullptr;
+  float margin_m = 0.f;
+};
+
+/// One visible rendered sample: camera-frame point, colour and full-resolution pixel index.
+struct RenderedSample {
+  Vec3f p_cam;
+  std::uint32_t rgb;
+  std::int32_t pixel;
+};
+
+/// Resolve pass for one z-buffer word of grid sample (i, j): decode the winning triangle, drop the sample if
+/// an observed occluder hides it, else shade it. Returns false for empty or occluded samples.
+PERCH2_HD inline bool resolve_sample(const MeshView& m, const Vec3f* verts_cam, DepthTriangle word,
+                                     const Intrinsics& K, int stride, int i, int j, const OccluderView& occ,
+                                     std::int32_t hypothesis_label, RenderedSample& out) {
+  if (word == kEmptyPixel) return false;
+  const float depth_m = unpack_depth(word);
+  const int tri = int(unpack_triangle(word));
+  const int u = stride * i, v = stride * j;
+  out.pixel = v * K.width + u;
+  if (occ.depth_m && is_occluded(depth_m, occ.depth_m[out.pixel], occ.labels != nullptr,
+                                 occ.labels ? occ.labels[out.pixel] : 0, hypothesis_label, occ.margin_m))
+    return false;
+  const Vec3f ray = grid_ray(K, stride, i, j);
+  out.p_cam = depth_m * ray;
+  const std::int32_t* f = m.triangles + 3 * tri;
+  out.rgb = pack_rgb(shade(m, tri, verts_cam[f[0]], verts_cam[f[1]], verts_cam[f[2]], ray));
+  return true;
+}
+
+}  // namespace perch2

@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# perch2 entry point: installs missing Debian packages, configures, builds, runs.
+#   ./run.sh demo [perch2 demo options]   build and run the built-in demo scene (writes PNGs to demo_out/)
+#   ./run.sh test                         build and run every test (ctest)
+#   ./run.sh bench                        build and run the benchmarks (Release)
+#   ./run.sh cuda                         compile and link the nvcc backend (perch2::cuda); needs nvcc
+#   ./run.sh asan                         run the tests under AddressSanitizer + UndefinedBehaviorSanitizer
+set -euo pipefail
+cd "$(dirname "$0")"
+
+DEPS=(cmake make g++ pkg-config libeigen3-dev libflann-dev liblz4-dev libopencv-dev libtinyobjloader-dev
+      doctest-dev nlohmann-json3-dev)
+JOBS=$(nproc)
+
+install_deps() {
+  local missing=()
+  for p in "${DEPS[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")
+  done
+  if ((${#missing[@]})); then
+    echo "== installing Debian packages: ${missing[*]}"
+    local sudo=""
+    [ "$(id -u)" -eq 0 ] || sudo=sudo
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  fi
+}
+
+build() {  # build DIR [cmake options...]
+  local dir=$1
+  shift
+  cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=Release "$@" >/dev/null
+  cmake --build "$dir" -j"$JOBS"
+}
+
+cmd=${1:-}
+[ $# -gt 0 ] && shift
+case "$cmd" in
+  demo)
+    install_deps
+    build build -DPERCH2_WITH_CUDA=OFF
+    ./build/examples/perch2 demo --out demo_out "$@"
+    ;;
+  test)
+    install_deps
+    build build -DPERCH2_WITH_CUDA=OFF
+    ctest --test-dir build --output-on-failure -j"$JOBS" "$@"
+    ;;
+  bench)
+    install_deps
+    build build -DPERCH2_WITH_CUDA=OFF
+    for b in build/bench/bench_*; do [ -x "$b" ] && "$b" "$@"; done
+    ;;
+  cuda)
+    install_deps
+    command -v nvcc >/dev/null || export PATH=/usr/local/cuda/bin:$PATH
+    build build-cuda -DPERCH2_WITH_CUDA=ON -DPERCH2_BUILD_TESTS=OFF -DPERCH2_BUILD_BENCH=OFF \
+      -DPERCH2_BUILD_EXAMPLES=OFF
+    test -f build-cuda/backends/cuda/libperch2_cuda.so || { echo "perch2::cuda was not built" >&2; exit 1; }
+    echo "== perch2::cuda compiled and linked: build-cuda/backends/cuda/libperch2_cuda.so (no GPU here to run it)"
+    ;;
+  asan)
+    install_deps
+    cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPERCH2_SANITIZE=ON -DPERCH2_WITH_CUDA=OFF \
+      -DPERCH2_BUILD_BENCH=OFF -DPERCH2_BUILD_EXAMPLES=OFF >/dev/null
+    cmake --build build-asan -j"$JOBS"
+    ASAN_OPTIONS=detect_leaks=0 UBSAN_OPTIONS=print_stacktrace=1 \
+      ctest --test-dir build-asan --output-on-failure -j"$JOBS" -E consumer "$@"
+    ;;
+  *)
+    sed -n '2,8p' "$0"
+    exit 2
+    ;;
+esac

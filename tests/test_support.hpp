@@ -1,0 +1,49 @@
+// Shared helpers for the test suites: backend lists, real-data lookup, temporary files.
+#pragma once
+
+#include <doctest/doctest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "perch2/cpu/backend.hpp"
+#include "perch2/cuda/backend.hpp"
+
+/// Every backend that runs on this machine; tests are parametrised over it with TEST_CASE_TEMPLATE.
+#define PERCH2_CPU_RUNNABLE_BACKENDS perch2::cpu::Backend, perch2::thrust_omp::Backend
+
+namespace perch2::test {
+
+/// Path of a file under ../shared/data, or "" (with a printed notice) if this checkout has no shared data.
+inline std::string shared_data(const std::string& relative) {
+  const std::filesystem::path p = std::filesystem::path(PERCH2_SHARED_DATA_DIR) / relative;
+  if (std::filesystem::exists(p)) return p.string();
+  MESSAGE("SKIPPED: " << p.string()
+                      << " not found (real data lives in ../shared/data beside the repository)");
+  return "";
+}
+
+/// A fresh path in the test build's temporary folder.
+inline std::string temp_path(const std::string& name) {
+  std::filesystem::create_directories(PERCH2_TEST_TMP_DIR);
+  return (std::filesystem::path(PERCH2_TEST_TMP_DIR) / name).string();
+}
+
+inline void write_file(const std::string& path, const std::string& bytes) {
+  std::ofstream f(path, std::ios::binary);
+  f.write(bytes.data(), std::streamsize(bytes.size()));
+}
+
+inline std::string read_file(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+}
+
+}  // namespace perch2::test
+
+/// Skip the rest of a test case (with a clear message) when a shared data file is missing.
+#define PERCH2_REQUIRE_SHARED_DATA(var, relative)              \
+  const std::string var = perch2::test::shared_data(relative); \
+  if (var.empty()) return
