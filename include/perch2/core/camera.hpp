@@ -22,8 +22,10 @@ struct Intrinsics {
   PERCH2_HD Vec3f backproject(float u, float v, float z) const {
     return {(u - cx) / fx * z, (v - cy) / fy * z, z};
   }
-  /// Ray direction with z = 1 through pixel (u, v).
-  PERCH2_HD Vec3f ray(float u, float v) const { return {(u - cx) / fx, (v - cy) / fy, 1.f}; }
+  /// Ray direction with z = 1 through pixel (u, v). Multiplies by 1/f (hoisted out of pixel loops) rather
+  /// than dividing: every ray in perch2 comes from here, so renders stay bit-identical across strides and
+  /// backends.
+  PERCH2_HD Vec3f ray(float u, float v) const { return {(u - cx) * (1.f / fx), (v - cy) * (1.f / fy), 1.f}; }
   PERCH2_HD int num_pixels() const { return width * height; }
 
   /// The stride grid: full-resolution pixels (s*i, s*j). Its intrinsics are K/s, so projecting with them

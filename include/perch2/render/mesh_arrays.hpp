@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "perch2/core/mesh.hpp"
+#include "perch2/core/pose.hpp"
 #include "perch2/render/raster.hpp"
 
 namespace perch2 {

@@ -255,7 +255,12 @@ PERCH2_HD inline void pose_vertex(const MeshView& m, const Rigid3f& T_cam_obj, c
                                   int stride, float near_m, int k, Vec3f* p_cam, GridSpan* span) {
   const Vec3f p = T_cam_obj * m.vertices[k];
   p_cam[k] = p;
-  span[k] = p.z >= near_m ? grid_span(K.project(p), K, stride) : GridSpan{kBehindNear, 0, 0, 0};
+  if (!(p.z >= near_m)) {
+    span[k] = GridSpan{kBehindNear, 0, 0, 0};
+    return;
+  }
+  const float inv_z = 1.f / p.z;  // one division; spans are a superset filter with a 1e-3 px margin
+  span[k] = grid_span({K.fx * p.x * inv_z + K.cx, K.fy * p.y * inv_z + K.cy}, K, stride);
 }
 
 /// Rasterise triangle `tri` of a posed model into an ROI z-buffer: calls plot(roi_index, packed_word) for
