@@ -64,7 +64,7 @@ case "$cmd" in
     cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPERCH2_SANITIZE=ON -DPERCH2_WITH_CUDA=OFF \
       -DPERCH2_BUILD_BENCH=OFF -DPERCH2_BUILD_EXAMPLES=OFF >/dev/null
     cmake --build build-asan -j"$JOBS"
-    ASAN_OPTIONS=detect_leaks=0 UBSAN_OPTIONS=print_stacktrace=1 \
+    UBSAN_OPTIONS=print_stacktrace=1 \
       ctest --test-dir build-asan --output-on-failure -j"$JOBS" -E consumer "$@"
     ;;
   *)

@@ -3,6 +3,7 @@
 // per-hypothesis ROI z-buffers with a packed 64-bit atomic min, resolve (hypothesis x ROI sample), then
 // compact the visible samples with a scan. Chunks are sized to RenderSettings::memory_budget_bytes.
 #include <thrust/device_vector.h>
+#include <thrust/execution_policy.h>
 #include <thrust/fill.h>
 #include <thrust/for_each.h>
 #include <thrust/gather.h>
@@ -17,18 +18,10 @@
 #include "perch2/cuda/render.hpp"
 #include "perch2/render/mesh_arrays.hpp"
 #include "perch2/render/raster.hpp"
+#include "thrust_util.hpp"
 
 namespace perch2::thrust_backend {
 namespace render_detail {
-
-template <class T>
-T* ptr(thrust::device_vector<T>& v) {
-  return thrust::raw_pointer_cast(v.data());
-}
-template <class T>
-const T* ptr(const thrust::device_vector<T>& v) {
-  return thrust::raw_pointer_cast(v.data());
-}
 
 /// One model's arrays in device memory.
 struct DeviceMesh {
@@ -39,11 +32,11 @@ struct DeviceMesh {
   MeshView view;
 
   explicit DeviceMesh(const MeshArrays& a)
-      : vertices(a.vertices.begin(), a.vertices.end()),
-        triangles(a.triangles.begin(), a.triangles.end()),
-        vertex_colors(a.vertex_colors.begin(), a.vertex_colors.end()),
-        texture(a.texture.begin(), a.texture.end()),
-        corner_uvs(a.corner_uvs.begin(), a.corner_uvs.end()),
+      : vertices(to_device(a.vertices)),
+        triangles(to_device(a.triangles)),
+        vertex_colors(to_device(a.vertex_colors)),
+        texture(to_device(a.texture)),
+        corner_uvs(to_device(a.corner_uvs)),
         view(a.view(ptr(vertices), ptr(triangles), ptr(vertex_colors), ptr(corner_uvs), ptr(texture))) {}
 };
 
@@ -188,14 +181,15 @@ struct HostDomain {
 struct DeviceDomain {
   thrust::device_vector<std::int64_t> elements, blocks;
   Domain upload(const HostDomain& d) {
-    elements.assign(d.elements.begin(), d.elements.end());
-    blocks.assign(d.blocks.begin(), d.blocks.end());
+    elements = to_device(d.elements);
+    blocks = to_device(d.blocks);
     return {ptr(elements), ptr(blocks)};
   }
 };
 
 template <class T>
 void append(std::vector<T>& out, const thrust::device_vector<T>& chunk, std::size_t n) {
+  if (n == 0) return;  // Thrust's cross-system copy takes &*out even for an empty range
   const std::size_t at = out.size();
   out.resize(at + n);
   thrust::copy(chunk.begin(), chunk.begin() + std::ptrdiff_t(n), out.begin() + std::ptrdiff_t(at));
@@ -223,7 +217,7 @@ Renderer<System>::Renderer(std::vector<Mesh> models) : impl_(std::make_unique<Im
     impl_->device.push_back(std::make_unique<render_detail::DeviceMesh>(arrays));
     views.push_back(impl_->device.back()->view);
   }
-  impl_->views = thrust::device_vector<MeshView>(views.begin(), views.end());
+  impl_->views = to_device(views);
 }
 template <class System>
 Renderer<System>::~Renderer() = default;
@@ -248,15 +242,14 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
   std::vector<Rigid3f> T(n);
   for (int k = 0; k < n; ++k)
     model[k] = hypotheses[k].model, label[k] = hypotheses[k].label, T[k] = to_rigid(hypotheses[k].T_cam_obj);
-  const thrust::device_vector<std::int32_t> d_model(model.begin(), model.end()),
-      d_label(label.begin(), label.end());
-  const thrust::device_vector<Rigid3f> d_T(T.begin(), T.end());
+  const thrust::device_vector<std::int32_t> d_model = to_device(model), d_label = to_device(label);
+  const thrust::device_vector<Rigid3f> d_T = to_device(T);
   thrust::device_vector<float> d_occ_depth;
   thrust::device_vector<std::int32_t> d_occ_labels;
   OccluderView occ;
   if (occluders) {
-    d_occ_depth.assign(occluders->depth_m.data.begin(), occluders->depth_m.data.end());
-    d_occ_labels.assign(occluders->labels.data.begin(), occluders->labels.data.end());
+    d_occ_depth = to_device(occluders->depth_m.data);
+    d_occ_labels = to_device(occluders->labels.data);
     occ.depth_m = ptr(d_occ_depth);
     occ.labels = occluders->labels.empty() ? nullptr : ptr(d_occ_labels);
     occ.margin_m = s.occlusion_margin_m;
@@ -265,9 +258,9 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
 
   // ROIs on the device; their sizes come back once to plan the chunks.
   thrust::device_vector<GridRoi> d_roi(n);
-  thrust::transform(thrust::counting_iterator<int>(0), thrust::counting_iterator<int>(n), d_roi.begin(),
-                    ComputeRoi{args, camera, s.stride, s.near_m});
-  const std::vector<GridRoi> roi(d_roi.begin(), d_roi.end());
+  thrust::transform(thrust::device, thrust::counting_iterator<int>(0), thrust::counting_iterator<int>(n),
+                    ptr(d_roi), ComputeRoi{args, camera, s.stride, s.near_m});
+  const std::vector<GridRoi> roi = to_host(d_roi);
 
   // Bytes per ROI sample: z-buffer word, resolved sample, visibility flag and slot.
   constexpr std::size_t kPixelBytes = sizeof(DepthTriangle) + sizeof(RenderedSample) + 4 + 8;
@@ -325,10 +318,12 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
 
     // Compact: slot[k] = number of visible samples before k; slot[num_pixels] = chunk total.
     d_slot.resize(std::size_t(num_pixels) + 1);
-    d_slot[0] = 0;
-    thrust::inclusive_scan(d_visible.begin(), d_visible.end(), d_slot.begin() + 1,
+    write_at(d_slot, 0, std::int64_t(0));
+    // Raw pointers with an explicit policy: Thrust's OpenMP scan is sequential over device_reference
+    // iterators, whose reads bind a reference through a null policy pointer (UBSan reports it).
+    thrust::inclusive_scan(thrust::device, ptr(d_visible), ptr(d_visible) + num_pixels, ptr(d_slot) + 1,
                            thrust::plus<std::int64_t>());
-    const std::int64_t total = d_slot[std::size_t(num_pixels)];
+    const std::int64_t total = read_at(d_slot, std::size_t(num_pixels));
     for (auto* v : {&d_x, &d_y, &d_z}) v->resize(std::size_t(total));
     d_rgb.resize(std::size_t(total)), d_pixel.resize(std::size_t(total)), d_cloud.resize(std::size_t(total));
     thrust::for_each(Items(0), Items(pixels.blocks.back()),
@@ -337,8 +332,9 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
 
     // Per-hypothesis offsets: the slot at the start of each ROI.
     d_starts.resize(std::size_t(count) + 1);
-    thrust::gather(d_pixels.elements.begin(), d_pixels.elements.end(), d_slot.begin(), d_starts.begin());
-    const std::vector<std::int64_t> starts(d_starts.begin(), d_starts.end());
+    thrust::gather(thrust::device, ptr(d_pixels.elements), ptr(d_pixels.elements) + count + 1, ptr(d_slot),
+                   ptr(d_starts));
+    const std::vector<std::int64_t> starts = to_host(d_starts);
     const std::int64_t at = std::int64_t(batch.size());
     for (int k = 1; k <= count; ++k) batch.offsets[first + k] = at + starts[k];
 
