@@ -276,6 +276,7 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
   thrust::device_vector<float> d_x, d_y, d_z;
   thrust::device_vector<std::uint32_t> d_rgb;
   using Items = thrust::counting_iterator<std::int64_t>;
+  const std::size_t budget = s.memory_budget_bytes ? s.memory_budget_bytes : System::default_chunk_bytes;
   for (int first = 0; first < n;) {
     // Grow the chunk while it fits the budget (always at least one hypothesis).
     HostDomain vertices, triangles, pixels;
@@ -286,7 +287,7 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
       const std::int64_t roi_size = roi[first + count].size();
       const std::size_t more =
           m.vertices * (sizeof(Vec3f) + sizeof(GridSpan)) + std::size_t(roi_size) * kPixelBytes;
-      if (count > 0 && bytes + more > s.memory_budget_bytes) break;
+      if (count > 0 && bytes + more > budget) break;
       bytes += more;
       vertices.add(std::int64_t(m.vertices));
       triangles.add(std::int64_t(m.triangles));

@@ -1,4 +1,6 @@
 // Reference batch renderer: one hypothesis per OpenMP iteration, a private z-buffer over its ROI.
+// Its working memory is one ROI and one posed model per thread, so RenderSettings::memory_budget_bytes
+// does not apply to it.
 #pragma once
 
 #include <memory>
