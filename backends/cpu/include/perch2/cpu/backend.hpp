@@ -1,6 +1,8 @@
 // The reference backend as a policy: every stage type a pipeline templated on a Backend needs.
 #pragma once
 
+#include "perch2/cpu/knn.hpp"
+#include "perch2/cpu/registration.hpp"
 #include "perch2/cpu/render.hpp"
 
 namespace perch2::cpu {
@@ -8,6 +10,8 @@ namespace perch2::cpu {
 struct Backend {
   static constexpr const char* name = "cpu";
   using Renderer = cpu::Renderer;
+  using KnnIndex = cpu::KnnIndex;
+  using Registration = cpu::Registration;
 };
 
 }  // namespace perch2::cpu

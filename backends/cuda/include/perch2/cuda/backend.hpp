@@ -1,6 +1,8 @@
 // The Thrust backend as a policy, once per device system (see system.hpp).
 #pragma once
 
+#include "perch2/cuda/knn.hpp"
+#include "perch2/cuda/registration.hpp"
 #include "perch2/cuda/render.hpp"
 #include "perch2/cuda/system.hpp"
 
@@ -10,6 +12,8 @@ template <class System>
 struct Backend {
   static constexpr const char* name = System::name;
   using Renderer = thrust_backend::Renderer<System>;
+  using KnnIndex = thrust_backend::KnnIndex<System>;
+  using Registration = thrust_backend::Registration<System>;
 };
 
 }  // namespace perch2::thrust_backend

@@ -1,0 +1,682 @@
+// Thrust registration (compiled by registration.cu with nvcc and by registration_omp.cpp with g++).
+// Algorithm: perch2/registration/registration.hpp. Per call: upload the sources, estimate source normals
+// (GICP), then max_iterations x { pass over blocks of points (correspondence by grid_knn, per-point normal
+// equations summed per block), step over hypotheses (sum the hypothesis' blocks in a fixed order, LM accept/
+// reject, damped LDL^T solve, pose update, convergence flag) }. Converged or stopped hypotheses skip both.
+// The host only launches passes: the one device->host copy is the final per-hypothesis state.
+#include <thrust/copy.h>
+#include <thrust/device_vector.h>
+#include <thrust/execution_policy.h>
+#include <thrust/for_each.h>
+#include <thrust/iterator/counting_iterator.h>
+
+#include <cmath>
+#include <limits>
+#include <map>
+#include <mutex>
+
+#include "perch2/core/segments.hpp"
+#include "perch2/cuda/registration.hpp"
+#include "perch2/knn/grid.hpp"
+#include "perch2/knn/scan.hpp"
+#include "perch2/registration/device_math.hpp"
+
+namespace perch2::thrust_backend {
+namespace reg_detail {
+
+template <class T>
+T* ptr(thrust::device_vector<T>& v) {
+  return thrust::raw_pointer_cast(v.data());
+}
+template <class T>
+const T* ptr(const thrust::device_vector<T>& v) {
+  return thrust::raw_pointer_cast(v.data());
+}
+
+/// Points per block of the per-iteration pass: one thread handles one block of one hypothesis and writes
+/// one partial sum. Affects only throughput and float summation order, not the algorithm.
+constexpr std::int64_t kBlockPoints = 64;
+
+/// Partial sums of one block: upper triangle of H (21), g (6), costs, squared distances, inliers.
+struct Accum {
+  float H[21];
+  float g[6];
+  float cost_new, cost_old, sq;
+  int inliers;
+};
+
+/// Per-hypothesis LM state (device memory).
+struct HypState {
+  Rigid3f T_acc, T_cand;
+  float H[21];
+  float g[6];
+  float cost_acc, sq_acc, lambda;
+  int inliers, iterations;
+  int buf;  ///< which correspondence buffer (0/1) holds the accepted pose's correspondences
+  std::uint8_t have_acc, active, converged;
+};
+
+/// Per-call constants (POD copy of the settings).
+struct Params {
+  int gicp, table, min_inliers, max_iterations;
+  float eps, max_dist, trans_eps, rot_eps;
+  Vec3f up, e1, e2, origin;
+  float lambda_initial, lambda_up, lambda_down, lambda_min, lambda_max, floor;
+};
+
+/// Surface normal of a neighbourhood given as indices into `points` (offsets taken relative to `ref`, which
+/// keeps float sums well conditioned); zero with fewer than 3 points.
+PERCH2_HD inline Vec3f neighbourhood_normal(const Vec3f* points, const std::int32_t* idx, int n, Vec3f ref) {
+  if (n < 3) return {0.f, 0.f, 0.f};
+  Vec3f s1{0.f, 0.f, 0.f};
+  reg::Sym3 s2{0, 0, 0, 0, 0, 0};
+  for (int j = 0; j < n; ++j) {
+    const Vec3f d = points[idx[j]] - ref;
+    s1 = s1 + d;
+    s2 = reg::sym3_add(s2, {d.x * d.x, d.x * d.y, d.x * d.z, d.y * d.y, d.y * d.z, d.z * d.z});
+  }
+  const float inv = 1.f / float(n);
+  const Vec3f m = inv * s1;
+  const reg::Sym3 C{s2.xx * inv - m.x * m.x, s2.xy * inv - m.x * m.y, s2.xz * inv - m.x * m.z,
+                    s2.yy * inv - m.y * m.y, s2.yz * inv - m.y * m.z, s2.zz * inv - m.z * m.z};
+  return reg::smallest_eigenvector(C);
+}
+
+/// Target normals: k nearest neighbours of each target point within its own segment (grid search).
+struct TargetNormals {
+  GridView grid;
+  const Vec3f* points;
+  const std::int64_t* offsets;
+  int num_segments, k;
+  Vec3f* normals;
+  PERCH2_HD void operator()(std::int64_t i) const {
+    const int seg = find_segment(offsets, num_segments, i);
+    std::int32_t idx[kMaxCovarianceNeighbors];
+    float d2[kMaxCovarianceNeighbors];
+    const int n = grid_knn(grid, seg, points[i], k, INFINITY, idx, d2);
+    normals[i] = neighbourhood_normal(points, idx, n, points[i]);
+  }
+};
+
+/// Heap sort of n (key, index) pairs by key, then index (device-callable, no extra memory).
+template <class K>
+PERCH2_HD inline void heap_sort_pairs(K* key, std::int32_t* idx, std::int64_t n) {
+  auto less = [&](std::int64_t a, std::int64_t b) {
+    return key[a] < key[b] || (key[a] == key[b] && idx[a] < idx[b]);
+  };
+  auto swap = [&](std::int64_t a, std::int64_t b) {
+    const K tk = key[a];
+    key[a] = key[b];
+    key[b] = tk;
+    const std::int32_t ti = idx[a];
+    idx[a] = idx[b];
+    idx[b] = ti;
+  };
+  auto sift = [&](std::int64_t root, std::int64_t size) {
+    while (true) {
+      std::int64_t child = 2 * root + 1;
+      if (child >= size) return;
+      if (child + 1 < size && less(child, child + 1)) ++child;
+      if (!less(root, child)) return;
+      swap(root, child);
+      root = child;
+    }
+  };
+  for (std::int64_t r = n / 2 - 1; r >= 0; --r) sift(r, n);
+  for (std::int64_t end = n - 1; end > 0; --end) {
+    swap(0, end);
+    sift(0, end);
+  }
+}
+
+/// Sort keys of source points: x coordinate (the kNN sweep) or the pixel index (pixel neighbourhoods).
+struct SortKeys {
+  const Vec3f* points;
+  const std::int32_t* pixel;  // null: key = x
+  float* key_x;
+  std::int32_t* key_pixel;
+  std::int32_t* order;
+  PERCH2_HD void operator()(std::int64_t i) const {
+    if (pixel)
+      key_pixel[i] = pixel[i];
+    else
+      key_x[i] = points[i].x;
+    order[i] = std::int32_t(i);
+  }
+};
+
+/// Sorts each source cloud's (key, point) pairs in place: one cloud per thread (clouds are small).
+struct SortClouds {
+  const std::int64_t* offsets;
+  float* key_x;
+  std::int32_t* key_pixel;
+  std::int32_t* order;
+  PERCH2_HD void operator()(int c) const {
+    const std::int64_t b = offsets[c], n = offsets[c + 1] - b;
+    if (key_pixel)
+      heap_sort_pairs(key_pixel + b, order + b, n);
+    else
+      heap_sort_pairs(key_x + b, order + b, n);
+  }
+};
+
+/// Scatters the x-sorted points and each point's sorted position.
+struct ScatterSorted {
+  const Vec3f* points;
+  const std::int32_t* order;
+  Vec3f* sorted;
+  std::int32_t* position;
+  PERCH2_HD void operator()(std::int64_t s) const {
+    sorted[s] = points[order[s]];
+    position[order[s]] = std::int32_t(s);
+  }
+};
+
+/// Source normals from the k nearest neighbours within the same source cloud, found exactly by a sweep over
+/// the cloud's points sorted by x: outwards from the query until the x gap alone exceeds the k-th distance.
+struct SourceKnnNormals {
+  const Vec3f* sorted;  // points sorted by (cloud, x)
+  const std::int32_t* position;
+  const std::int64_t* offsets;
+  int num_clouds, k;
+  Vec3f* normals;
+  PERCH2_HD void operator()(std::int64_t i) const {
+    const int c = find_segment(offsets, num_clouds, i);
+    const std::int64_t s0 = position[i], b = offsets[c], e = offsets[c + 1];
+    const Vec3f q = sorted[s0];
+    std::int32_t idx[kMaxCovarianceNeighbors];
+    float d2[kMaxCovarianceNeighbors];
+    knn_clear(k, idx, d2);
+    float bound = INFINITY;
+    for (std::int64_t s = s0; s < e; ++s) {
+      const float dx = sorted[s].x - q.x;
+      if (dx * dx > bound) break;
+      const float d = knn_sq_distance(sorted[s], q);
+      if (d <= bound && knn_push(k, idx, d2, INFINITY, d, std::int32_t(s))) bound = d2[k - 1];
+    }
+    for (std::int64_t s = s0 - 1; s >= b; --s) {
+      const float dx = sorted[s].x - q.x;
+      if (dx * dx > bound) break;
+      const float d = knn_sq_distance(sorted[s], q);
+      if (d <= bound && knn_push(k, idx, d2, INFINITY, d, std::int32_t(s))) bound = d2[k - 1];
+    }
+    int n = 0;
+    while (n < k && idx[n] >= 0) ++n;
+    normals[i] = neighbourhood_normal(sorted, idx, n, q);
+  }
+};
+
+/// Source normals from the render's pixel neighbourhood: each cloud's pixels sorted, with `order`.
+struct SourcePixelNormals {
+  const Vec3f* points;
+  const std::int64_t* offsets;
+  const std::int32_t* pixel;
+  const std::int32_t* sorted_keys;
+  const std::int32_t* order;
+  int num_clouds, width, radius;
+  float max_d2;
+  Vec3f* normals;
+
+  PERCH2_HD std::int64_t lower_bound(std::int64_t b, std::int64_t e, std::int32_t key) const {
+    while (b < e) {
+      const std::int64_t m = (b + e) / 2;
+      if (sorted_keys[m] < key)
+        b = m + 1;
+      else
+        e = m;
+    }
+    return b;
+  }
+
+  PERCH2_HD void operator()(std::int64_t i) const {
+    const int c = find_segment(offsets, num_clouds, i);
+    const Vec3f p = points[i];
+    const int u = pixel[i] % width, v = pixel[i] / width;
+    Vec3f s1{0.f, 0.f, 0.f};
+    reg::Sym3 s2{0, 0, 0, 0, 0, 0};
+    int n = 0;
+    for (int vv = max_int(0, v - radius); vv <= v + radius; ++vv) {
+      const std::int32_t lo = vv * width + max_int(0, u - radius);
+      const std::int32_t hi = vv * width + min_int(width - 1, u + radius);
+      for (std::int64_t s = lower_bound(offsets[c], offsets[c + 1], lo);
+           s < offsets[c + 1] && sorted_keys[s] <= hi; ++s) {
+        const Vec3f d = points[order[s]] - p;
+        if (!(dot(d, d) <= max_d2)) continue;
+        s1 = s1 + d;
+        s2 = reg::sym3_add(s2, {d.x * d.x, d.x * d.y, d.x * d.z, d.y * d.y, d.y * d.z, d.z * d.z});
+        ++n;
+      }
+    }
+    if (n < 3) {
+      normals[i] = {0.f, 0.f, 0.f};
+      return;
+    }
+    const float inv = 1.f / float(n);
+    const Vec3f m = inv * s1;
+    const reg::Sym3 C{s2.xx * inv - m.x * m.x, s2.xy * inv - m.x * m.y, s2.xz * inv - m.x * m.z,
+                      s2.yy * inv - m.y * m.y, s2.yz * inv - m.y * m.z, s2.zz * inv - m.z * m.z};
+    normals[i] = reg::smallest_eigenvector(C);
+  }
+};
+
+/// Initial state and source centroid of each hypothesis.
+struct InitState {
+  const Vec3f* points;
+  const std::int64_t* offsets;
+  float lambda_initial;
+  Vec3f* centroid;
+  HypState* state;
+  PERCH2_HD void operator()(int h) const {
+    Vec3f s{0.f, 0.f, 0.f};
+    const std::int64_t b = offsets[h], e = offsets[h + 1];
+    for (std::int64_t i = b; i < e; ++i) s = s + (points[i] - points[b]);
+    centroid[h] = e > b ? points[b] + (1.f / float(e - b)) * s : Vec3f{0.f, 0.f, 0.f};
+    HypState st{};
+    st.T_acc.R = reg::mat3_identity();
+    st.T_acc.t = {0.f, 0.f, 0.f};
+    st.T_cand = st.T_acc;
+    st.lambda = lambda_initial;
+    st.active = 1;
+    state[h] = st;
+  }
+};
+
+/// GICP weight W = (C_t + R C_s R^T)^-1 with plane covariances; identity for ICP.
+PERCH2_HD inline reg::Sym3 correspondence_weight(const Params& P, Vec3f nt, Vec3f m) {
+  if (!P.gicp) return {1, 0, 0, 1, 0, 1};
+  const reg::Sym3 M = reg::sym3_add(reg::plane_covariance(nt, P.eps), reg::plane_covariance(m, P.eps));
+  reg::Sym3 W;
+  if (!reg::sym3_inverse(M, W)) return {1, 0, 0, 1, 0, 1};
+  return W;
+}
+
+/// The per-iteration pass over one block of one hypothesis' points, at its candidate pose.
+struct LinearizeBlock {
+  Params P;
+  GridView grid;
+  const Vec3f* target_points;
+  const Vec3f* target_normals;  // null for ICP
+  const Vec3f* points;
+  const Vec3f* normals;  // null for ICP
+  const std::int32_t* segment;
+  const Vec3f* centroid;
+  const int* block_hyp;
+  const std::int64_t* block_begin;
+  const HypState* state;
+  std::int32_t* corr;  // 2 x num_points
+  std::int64_t num_points;
+  Accum* blocks;
+
+  PERCH2_HD void operator()(std::int64_t b) const {
+    const int h = block_hyp[b];
+    const HypState& st = state[h];
+    if (!st.active) return;
+    Accum a;
+    for (int k = 0; k < 21; ++k) a.H[k] = 0.f;
+    for (int k = 0; k < 6; ++k) a.g[k] = 0.f;
+    a.cost_new = a.cost_old = a.sq = 0.f;
+    a.inliers = 0;
+    const Rigid3f T = st.T_cand;
+    const Vec3f c = P.table ? P.origin : T * centroid[h];
+    const int seg = segment[h];
+    const std::int32_t* corr_old = corr + std::int64_t(st.buf) * num_points;
+    std::int32_t* corr_new = corr + std::int64_t(1 - st.buf) * num_points;
+    const std::int64_t end = block_begin[b + 1];
+    for (std::int64_t i = block_begin[b]; i < end; ++i) {
+      const Vec3f p = T * points[i];
+      const Vec3f m = P.gicp ? T.R * normals[i] : Vec3f{0.f, 0.f, 0.f};
+      std::int32_t j;
+      float d2;
+      const int found = grid_knn(grid, seg, p, 1, P.max_dist, &j, &d2);
+      corr_new[i] = found ? j : -1;
+      if (found) {
+        const Vec3f d = target_points[j] - p;
+        const reg::Sym3 W = correspondence_weight(P, P.gicp ? target_normals[j] : Vec3f{0, 0, 0}, m);
+        // J = [[r]x, -I] (3x6), r = p - c: row k of J.
+        const Vec3f r = p - c;
+        const float J[3][6] = {{0.f, -r.z, r.y, -1.f, 0.f, 0.f},
+                               {r.z, 0.f, -r.x, 0.f, -1.f, 0.f},
+                               {-r.y, r.x, 0.f, 0.f, 0.f, -1.f}};
+        const float Wm[3][3] = {{W.xx, W.xy, W.xz}, {W.xy, W.yy, W.yz}, {W.xz, W.yz, W.zz}};
+        float WJ[3][6];
+        for (int row = 0; row < 3; ++row)
+          for (int col = 0; col < 6; ++col)
+            WJ[row][col] = Wm[row][0] * J[0][col] + Wm[row][1] * J[1][col] + Wm[row][2] * J[2][col];
+        const float dv[3] = {d.x, d.y, d.z};
+        int t = 0;
+        for (int r0 = 0; r0 < 6; ++r0) {
+          for (int c0 = r0; c0 < 6; ++c0, ++t)
+            a.H[t] += J[0][r0] * WJ[0][c0] + J[1][r0] * WJ[1][c0] + J[2][r0] * WJ[2][c0];
+          a.g[r0] += WJ[0][r0] * dv[0] + WJ[1][r0] * dv[1] + WJ[2][r0] * dv[2];
+        }
+        a.cost_new += dot(d, reg::sym3_mul(W, d));
+        a.sq += dot(d, d);
+        ++a.inliers;
+      }
+      if (st.have_acc && corr_old[i] >= 0) {
+        const std::int32_t jo = corr_old[i];
+        const Vec3f d = target_points[jo] - p;
+        // Weights frozen at the accepted linearisation: the cost the step minimised.
+        const Vec3f m_acc = P.gicp ? st.T_acc.R * normals[i] : Vec3f{0.f, 0.f, 0.f};
+        const reg::Sym3 W = correspondence_weight(P, P.gicp ? target_normals[jo] : Vec3f{0, 0, 0}, m_acc);
+        a.cost_old += dot(d, reg::sym3_mul(W, d));
+      }
+    }
+    blocks[b] = a;
+  }
+};
+
+/// The per-iteration step of one hypothesis: sum its blocks, accept/reject, solve, update, converge.
+struct StepHypothesis {
+  Params P;
+  const Vec3f* centroid;
+  const std::int64_t* hyp_blocks;  // blocks [hyp_blocks[h], hyp_blocks[h + 1]) belong to h
+  const Accum* blocks;
+  HypState* state;
+
+  PERCH2_HD void operator()(int h) const {
+    HypState st = state[h];
+    if (!st.active) return;
+    Accum a;
+    for (int k = 0; k < 21; ++k) a.H[k] = 0.f;
+    for (int k = 0; k < 6; ++k) a.g[k] = 0.f;
+    a.cost_new = a.cost_old = a.sq = 0.f;
+    a.inliers = 0;
+    for (std::int64_t b = hyp_blocks[h]; b < hyp_blocks[h + 1]; ++b) {
+      const Accum& x = blocks[b];
+      for (int k = 0; k < 21; ++k) a.H[k] += x.H[k];
+      for (int k = 0; k < 6; ++k) a.g[k] += x.g[k];
+      a.cost_new += x.cost_new;
+      a.cost_old += x.cost_old;
+      a.sq += x.sq;
+      a.inliers += x.inliers;
+    }
+    ++st.iterations;
+    const bool accept = !st.have_acc || a.cost_old <= st.cost_acc;
+    if (accept) {
+      if (st.have_acc) st.lambda = fmaxf(st.lambda * P.lambda_down, P.lambda_min);
+      st.T_acc = st.T_cand;
+      st.buf = 1 - st.buf;
+      for (int k = 0; k < 21; ++k) st.H[k] = a.H[k];
+      for (int k = 0; k < 6; ++k) st.g[k] = a.g[k];
+      st.cost_acc = a.cost_new;
+      st.sq_acc = a.sq;
+      st.inliers = a.inliers;
+      st.have_acc = 1;
+    } else {
+      st.lambda *= P.lambda_up;
+      if (st.lambda > P.lambda_max) return finish(h, st);
+    }
+    if (st.inliers < P.min_inliers) return finish(h, st);
+
+    Vec3f w, v;
+    if (P.table) {
+      // Reduced system B^T H B, B = [[up, 0, 0], [0, e1, e2]] (6x3).
+      float B[6][3] = {{P.up.x, 0, 0},      {P.up.y, 0, 0},      {P.up.z, 0, 0},
+                       {0, P.e1.x, P.e2.x}, {0, P.e1.y, P.e2.y}, {0, P.e1.z, P.e2.z}};
+      float A[9], rhs[3], z[3];
+      for (int i = 0; i < 3; ++i) {
+        float gi = 0.f;
+        for (int r = 0; r < 6; ++r) gi += B[r][i] * st.g[r];
+        rhs[i] = -gi;
+        for (int j = 0; j < 3; ++j) {
+          float s = 0.f;
+          for (int r = 0; r < 6; ++r)
+            for (int c = 0; c < 6; ++c)
+              s += B[r][i] * st.H[r <= c ? reg::sym6_index(r, c) : reg::sym6_index(c, r)] * B[c][j];
+          A[3 * i + j] = s;
+        }
+      }
+      for (int i = 0; i < 3; ++i) A[4 * i] += st.lambda * (A[4 * i] + P.floor);
+      if (!reg::ldlt_solve<3>(A, rhs, z)) return finish(h, st);
+      w = z[0] * P.up;
+      v = z[1] * P.e1 + z[2] * P.e2;
+    } else {
+      float A[36], rhs[6], x[6];
+      for (int r = 0; r < 6; ++r) {
+        rhs[r] = -st.g[r];
+        for (int c = 0; c < 6; ++c)
+          A[6 * r + c] = st.H[r <= c ? reg::sym6_index(r, c) : reg::sym6_index(c, r)];
+      }
+      for (int r = 0; r < 6; ++r) A[7 * r] += st.lambda * (A[7 * r] + P.floor);
+      if (!reg::ldlt_solve<6>(A, rhs, x)) return finish(h, st);
+      w = {x[0], x[1], x[2]};
+      v = {x[3], x[4], x[5]};
+    }
+    if (!(reg::is_finite(w) && reg::is_finite(v))) return finish(h, st);
+    if (accept && sqrtf(dot(w, w)) < P.rot_eps && sqrtf(dot(v, v)) < P.trans_eps) {
+      st.converged = 1;
+      return finish(h, st);
+    }
+    const Vec3f c = P.table ? P.origin : st.T_acc * centroid[h];
+    st.T_cand = reg::apply_increment(st.T_acc, w, v, c);
+    if (st.iterations >= P.max_iterations) return finish(h, st);
+    state[h] = st;
+  }
+
+  PERCH2_HD void finish(int h, HypState& st) const {
+    st.active = 0;
+    state[h] = st;
+  }
+};
+
+}  // namespace reg_detail
+
+template <class System>
+struct Registration<System>::Impl {
+  std::size_t num_segments = 0;
+  thrust::device_vector<Vec3f> target_points;
+  thrust::device_vector<std::int64_t> target_offsets;
+  thrust::device_vector<GridSegment> grid_segments;
+  thrust::device_vector<std::int32_t> grid_cell_start, grid_point_index;
+  thrust::device_vector<Vec3f> grid_points;
+  mutable std::mutex mutex;
+  mutable std::map<int, thrust::device_vector<Vec3f>> target_normals;  // by k_neighbors
+
+  GridView grid() const {
+    using reg_detail::ptr;
+    return {ptr(grid_segments), int(grid_segments.size()), ptr(grid_cell_start), ptr(grid_points),
+            ptr(grid_point_index)};
+  }
+
+  const thrust::device_vector<Vec3f>& normals(int k) const {
+    std::lock_guard<std::mutex> lock(mutex);
+    auto it = target_normals.find(k);
+    if (it != target_normals.end()) return it->second;
+    thrust::device_vector<Vec3f> n(target_points.size());
+    using reg_detail::ptr;
+    thrust::for_each(thrust::device, thrust::counting_iterator<std::int64_t>(0),
+                     thrust::counting_iterator<std::int64_t>(std::int64_t(target_points.size())),
+                     reg_detail::TargetNormals{grid(), ptr(target_points), ptr(target_offsets),
+                                               int(num_segments), k, ptr(n)});
+    return target_normals.emplace(k, std::move(n)).first->second;
+  }
+
+  RegistrationResult run(const CloudBatch& src, const std::vector<std::int32_t>& seg, reg_detail::Params P,
+                         const GicpSettings* gs) const {
+    using reg_detail::ptr;
+    const int num = int(src.num_clouds());
+    const std::int64_t n = std::int64_t(src.size());
+    const std::size_t un = src.size(), unum = src.num_clouds();
+    // Upload the sources and the block layout (host work proportional to the input, once per call).
+    std::vector<Vec3f> host_points(un);
+    for (std::int64_t i = 0; i < n; ++i) host_points[std::size_t(i)] = src.point(std::size_t(i));
+    std::vector<int> host_block_hyp;
+    std::vector<std::int64_t> host_block_begin, host_hyp_blocks(unum + 1, 0);
+    for (int h = 0; h < num; ++h) {
+      for (std::int64_t b = src.offsets[h]; b < src.offsets[h + 1]; b += reg_detail::kBlockPoints) {
+        host_block_hyp.push_back(h);
+        host_block_begin.push_back(b);
+      }
+      host_hyp_blocks[std::size_t(h) + 1] = std::int64_t(host_block_hyp.size());
+    }
+    host_block_begin.push_back(n);
+    const std::int64_t num_blocks = std::int64_t(host_block_hyp.size());
+    thrust::device_vector<Vec3f> points(host_points.begin(), host_points.end());
+    thrust::device_vector<std::int64_t> offsets(src.offsets.begin(), src.offsets.end());
+    thrust::device_vector<std::int32_t> segment(seg.begin(), seg.end());
+    thrust::device_vector<int> block_hyp(host_block_hyp.begin(), host_block_hyp.end());
+    thrust::device_vector<std::int64_t> block_begin(host_block_begin.begin(), host_block_begin.end());
+    thrust::device_vector<std::int64_t> hyp_blocks(host_hyp_blocks.begin(), host_hyp_blocks.end());
+    thrust::device_vector<Vec3f> centroid(unum);
+    thrust::device_vector<reg_detail::HypState> state(unum);
+    thrust::device_vector<std::int32_t> corr(2 * un, -1);
+    thrust::device_vector<reg_detail::Accum> blocks(static_cast<std::size_t>(num_blocks));
+    thrust::device_vector<Vec3f> normals;
+    const Vec3f* tn = nullptr;
+    const auto pts = thrust::counting_iterator<std::int64_t>(0);
+
+    if (gs) {
+      tn = ptr(normals_for(gs->k_neighbors));
+      normals.resize(un);
+      // Sort each cloud's points (by x for the kNN sweep, by pixel for pixel neighbourhoods) with one
+      // device-callable heap sort per cloud.
+      const bool by_pixel = gs->source_covariance == SourceCovariance::FromPixelNeighbourhood;
+      thrust::device_vector<float> key_x(by_pixel ? 0 : un);
+      thrust::device_vector<std::int32_t> key_pixel(by_pixel ? un : 0), order(un);
+      thrust::device_vector<std::int32_t> pixel;
+      if (by_pixel) pixel.assign(src.pixel.begin(), src.pixel.end());
+      float* kx = by_pixel ? nullptr : ptr(key_x);
+      std::int32_t* kp = by_pixel ? ptr(key_pixel) : nullptr;
+      thrust::for_each(
+          thrust::device, pts, pts + n,
+          reg_detail::SortKeys{ptr(points), by_pixel ? ptr(pixel) : nullptr, kx, kp, ptr(order)});
+      thrust::for_each(thrust::device, thrust::counting_iterator<int>(0), thrust::counting_iterator<int>(num),
+                       reg_detail::SortClouds{ptr(offsets), kx, kp, ptr(order)});
+      if (!by_pixel) {
+        thrust::device_vector<std::int32_t> position(un);
+        thrust::device_vector<Vec3f> sorted(un);
+        thrust::for_each(thrust::device, pts, pts + n,
+                         reg_detail::ScatterSorted{ptr(points), ptr(order), ptr(sorted), ptr(position)});
+        thrust::for_each(thrust::device, pts, pts + n,
+                         reg_detail::SourceKnnNormals{ptr(sorted), ptr(position), ptr(offsets), num,
+                                                      gs->k_neighbors, ptr(normals)});
+      } else {
+        const float md = gs->pixel_neighbour_max_distance_m;
+        thrust::for_each(thrust::device, pts, pts + n,
+                         reg_detail::SourcePixelNormals{ptr(points), ptr(offsets), ptr(pixel), ptr(key_pixel),
+                                                        ptr(order), num, gs->image_width_px,
+                                                        gs->pixel_radius_px, md * md, ptr(normals)});
+      }
+    }
+
+    const auto hyps = thrust::counting_iterator<int>(0);
+    thrust::for_each(
+        thrust::device, hyps, hyps + num,
+        reg_detail::InitState{ptr(points), ptr(offsets), P.lambda_initial, ptr(centroid), ptr(state)});
+    const reg_detail::LinearizeBlock pass{P,
+                                          grid(),
+                                          ptr(target_points),
+                                          tn,
+                                          ptr(points),
+                                          gs ? ptr(normals) : nullptr,
+                                          ptr(segment),
+                                          ptr(centroid),
+                                          ptr(block_hyp),
+                                          ptr(block_begin),
+                                          ptr(state),
+                                          ptr(corr),
+                                          n,
+                                          ptr(blocks)};
+    const reg_detail::StepHypothesis step{P, ptr(centroid), ptr(hyp_blocks), ptr(blocks), ptr(state)};
+    for (int it = 0; it < P.max_iterations; ++it) {
+      thrust::for_each(thrust::device, pts, pts + num_blocks, pass);
+      thrust::for_each(thrust::device, hyps, hyps + num, step);
+    }
+
+    std::vector<reg_detail::HypState> host_state(unum);
+    thrust::copy(state.begin(), state.end(), host_state.begin());
+    RegistrationResult res;
+    for (const auto& st : host_state) {
+      res.T_corr.push_back(to_pose(st.T_acc));
+      res.iterations.push_back(st.iterations);
+      res.inliers.push_back(st.inliers);
+      res.final_error.push_back(st.inliers > 0 ? std::sqrt(st.sq_acc / float(st.inliers))
+                                               : std::numeric_limits<float>::infinity());
+      res.converged.push_back(st.converged);
+    }
+    return res;
+  }
+
+  const thrust::device_vector<Vec3f>& normals_for(int k) const { return normals(k); }
+};
+
+namespace reg_detail {
+template <class S>
+Params make_params(const S& s, bool gicp, float eps) {
+  Params P{};
+  P.gicp = gicp ? 1 : 0;
+  P.table = s.dof == Dof::TableXYYaw ? 1 : 0;
+  P.min_inliers = s.min_inliers;
+  P.max_iterations = s.max_iterations;
+  P.eps = eps;
+  P.max_dist = s.max_correspondence_distance_m;
+  P.trans_eps = s.translation_epsilon_m;
+  P.rot_eps = s.rotation_epsilon_rad;
+  if (P.table) {
+    const Eigen::Vector3f u = s.up_cam.normalized();
+    Eigen::Vector3f e1, e2;
+    plane_basis(u, e1, e2);
+    P.up = to_vec3(u), P.e1 = to_vec3(e1), P.e2 = to_vec3(e2), P.origin = to_vec3(s.origin_cam);
+  } else {
+    P.up = P.e1 = P.e2 = P.origin = {0.f, 0.f, 0.f};
+  }
+  P.lambda_initial = s.lm.lambda_initial;
+  P.lambda_up = s.lm.lambda_up;
+  P.lambda_down = s.lm.lambda_down;
+  P.lambda_min = s.lm.lambda_min;
+  P.lambda_max = s.lm.lambda_max;
+  P.floor = s.lm.diagonal_floor;
+  return P;
+}
+}  // namespace reg_detail
+
+template <class System>
+Registration<System>::Registration(const CloudBatch& targets) : impl_(std::make_unique<Impl>()) {
+  validate_registration_targets(targets);
+  impl_->num_segments = targets.num_clouds();
+  std::vector<Vec3f> pts(targets.size());
+  for (std::size_t i = 0; i < targets.size(); ++i) pts[i] = targets.point(i);
+  impl_->target_points.assign(pts.begin(), pts.end());
+  impl_->target_offsets.assign(targets.offsets.begin(), targets.offsets.end());
+  // The grid is planned and sorted on the host once (kNN stage layout), then uploaded.
+  const HostGrid g(targets);
+  impl_->grid_segments.assign(g.segments.begin(), g.segments.end());
+  impl_->grid_cell_start.assign(g.cell_start.begin(), g.cell_start.end());
+  impl_->grid_points.assign(g.points.begin(), g.points.end());
+  impl_->grid_point_index.assign(g.point_index.begin(), g.point_index.end());
+}
+
+template <class System>
+Registration<System>::~Registration() = default;
+template <class System>
+Registration<System>::Registration(Registration&&) noexcept = default;
+template <class System>
+Registration<System>& Registration<System>::operator=(Registration&&) noexcept = default;
+
+template <class System>
+std::size_t Registration<System>::num_segments() const {
+  return impl_->num_segments;
+}
+
+template <class System>
+RegistrationResult Registration<System>::icp(const CloudBatch& sources,
+                                             const std::vector<std::int32_t>& source_segment,
+                                             const IcpSettings& settings) const {
+  validate(settings);
+  validate_registration_sources(sources, source_segment, impl_->num_segments);
+  return impl_->run(sources, source_segment, reg_detail::make_params(settings, false, 1.f), nullptr);
+}
+
+template <class System>
+RegistrationResult Registration<System>::gicp(const CloudBatch& sources,
+                                              const std::vector<std::int32_t>& source_segment,
+                                              const GicpSettings& settings) const {
+  validate(settings);
+  validate_registration_sources(sources, source_segment, impl_->num_segments,
+                                settings.source_covariance == SourceCovariance::FromPixelNeighbourhood);
+  return impl_->run(sources, source_segment,
+                    reg_detail::make_params(settings, true, settings.covariance_epsilon), &settings);
+}
+
+}  // namespace perch2::thrust_backend

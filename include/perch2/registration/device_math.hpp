@@ -1,0 +1,189 @@
+// Device-callable math of the registration stage: SO(3) exponential, rigid-transform composition, symmetric
+// 3x3 helpers (inverse, smallest eigenvector by Jacobi rotations, Segal's plane covariance) and a small
+// dense Cholesky (LDL^T) solve for the per-hypothesis 6x6 / 3x3 normal equations.
+// Everything is PERCH2_HD, float, without std containers or exceptions, so Thrust functors can call it.
+#pragma once
+
+#include <cmath>
+
+#include "perch2/core/device.hpp"
+
+namespace perch2::reg {
+
+PERCH2_HD inline bool is_finite(Vec3f v) {
+  return fabsf(v.x) <= 3.4e38f && fabsf(v.y) <= 3.4e38f && fabsf(v.z) <= 3.4e38f;  // false for NaN and inf
+}
+
+PERCH2_HD inline Mat3f mat3_identity() {
+  return {{1, 0, 0, 0, 1, 0, 0, 0, 1}};
+}
+
+PERCH2_HD inline Mat3f mat3_mul(const Mat3f& A, const Mat3f& B) {
+  Mat3f C{};
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      C.m[3 * r + c] = A.m[3 * r] * B.m[c] + A.m[3 * r + 1] * B.m[3 + c] + A.m[3 * r + 2] * B.m[6 + c];
+  return C;
+}
+
+/// Rodrigues: exp([w]x) for a rotation vector w (radians). Uses the Taylor form for tiny angles.
+PERCH2_HD inline Mat3f so3_exp(Vec3f w) {
+  const float th2 = dot(w, w);
+  float a, b;  // R = I + a [w]x + b [w]x^2
+  if (th2 < 1e-8f) {
+    a = 1.f - th2 / 6.f;
+    b = 0.5f - th2 / 24.f;
+  } else {
+    const float th = sqrtf(th2);
+    a = sinf(th) / th;
+    b = (1.f - cosf(th)) / th2;
+  }
+  const float x = w.x, y = w.y, z = w.z;
+  // [w]x^2 = w w^T - th2 I
+  Mat3f R{};
+  R.m[0] = 1.f + b * (x * x - th2);
+  R.m[1] = -a * z + b * x * y;
+  R.m[2] = a * y + b * x * z;
+  R.m[3] = a * z + b * x * y;
+  R.m[4] = 1.f + b * (y * y - th2);
+  R.m[5] = -a * x + b * y * z;
+  R.m[6] = -a * y + b * x * z;
+  R.m[7] = a * x + b * y * z;
+  R.m[8] = 1.f + b * (z * z - th2);
+  return R;
+}
+
+/// Left-multiplied increment about a pivot: G(p) = exp([w]x) (p - c) + c + v; returns G * T.
+PERCH2_HD inline Rigid3f apply_increment(const Rigid3f& T, Vec3f w, Vec3f v, Vec3f c) {
+  const Mat3f dR = so3_exp(w);
+  Rigid3f out;
+  out.R = mat3_mul(dR, T.R);
+  out.t = dR * (T.t - c) + c + v;
+  return out;
+}
+
+/// Symmetric 3x3 matrix, upper triangle.
+struct Sym3 {
+  float xx, xy, xz, yy, yz, zz;
+};
+
+PERCH2_HD inline Sym3 sym3_add(Sym3 a, Sym3 b) {
+  return {a.xx + b.xx, a.xy + b.xy, a.xz + b.xz, a.yy + b.yy, a.yz + b.yz, a.zz + b.zz};
+}
+
+/// Inverse of a symmetric 3x3 matrix by the adjugate; false if |det| is not positive.
+PERCH2_HD inline bool sym3_inverse(Sym3 a, Sym3& out) {
+  const float c00 = a.yy * a.zz - a.yz * a.yz;
+  const float c01 = a.xz * a.yz - a.xy * a.zz;
+  const float c02 = a.xy * a.yz - a.xz * a.yy;
+  const float det = a.xx * c00 + a.xy * c01 + a.xz * c02;
+  if (!(fabsf(det) > 0.f)) return false;
+  const float inv = 1.f / det;
+  out.xx = c00 * inv;
+  out.xy = c01 * inv;
+  out.xz = c02 * inv;
+  out.yy = (a.xx * a.zz - a.xz * a.xz) * inv;
+  out.yz = (a.xy * a.xz - a.xx * a.yz) * inv;
+  out.zz = (a.xx * a.yy - a.xy * a.xy) * inv;
+  return true;
+}
+
+PERCH2_HD inline Vec3f sym3_mul(Sym3 a, Vec3f v) {
+  return {a.xx * v.x + a.xy * v.y + a.xz * v.z, a.xy * v.x + a.yy * v.y + a.yz * v.z,
+          a.xz * v.x + a.yz * v.y + a.zz * v.z};
+}
+
+/// Segal's plane-like covariance with unit in-plane variance: C = I - (1 - eps) n n^T (n unit, or zero for
+/// "no normal", which gives the identity).
+PERCH2_HD inline Sym3 plane_covariance(Vec3f n, float eps) {
+  const float s = 1.f - eps;
+  return {1.f - s * n.x * n.x, -s * n.x * n.y, -s * n.x * n.z,
+          1.f - s * n.y * n.y, -s * n.y * n.z, 1.f - s * n.z * n.z};
+}
+
+/// Unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (cyclic Jacobi rotations), or the
+/// zero vector if the matrix is zero or not finite. `second_smallest` receives the middle eigenvalue.
+PERCH2_HD inline Vec3f smallest_eigenvector(Sym3 s, float* middle_eigenvalue = nullptr) {
+  float a[3][3] = {{s.xx, s.xy, s.xz}, {s.xy, s.yy, s.yz}, {s.xz, s.yz, s.zz}};
+  float v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  const float scale = fabsf(s.xx) + fabsf(s.yy) + fabsf(s.zz);
+  if (!(scale > 0.f) || !(scale < 3.0e38f)) {
+    if (middle_eigenvalue) *middle_eigenvalue = 0.f;
+    return {0.f, 0.f, 0.f};
+  }
+  for (int sweep = 0; sweep < 12; ++sweep) {
+    const float off = fabsf(a[0][1]) + fabsf(a[0][2]) + fabsf(a[1][2]);
+    if (off <= 1e-9f * scale) break;
+    for (int p = 0; p < 2; ++p)
+      for (int q = p + 1; q < 3; ++q) {
+        if (a[p][q] == 0.f) continue;
+        const float theta = (a[q][q] - a[p][p]) / (2.f * a[p][q]);
+        const float t = (theta >= 0.f ? 1.f : -1.f) / (fabsf(theta) + sqrtf(theta * theta + 1.f));
+        const float c = 1.f / sqrtf(t * t + 1.f), sn = t * c;
+        for (int k = 0; k < 3; ++k) {  // A <- A J
+          const float akp = a[k][p], akq = a[k][q];
+          a[k][p] = c * akp - sn * akq;
+          a[k][q] = sn * akp + c * akq;
+        }
+        for (int k = 0; k < 3; ++k) {  // A <- J^T A
+          const float apk = a[p][k], aqk = a[q][k];
+          a[p][k] = c * apk - sn * aqk;
+          a[q][k] = sn * apk + c * aqk;
+        }
+        for (int k = 0; k < 3; ++k) {  // V <- V J
+          const float vkp = v[k][p], vkq = v[k][q];
+          v[k][p] = c * vkp - sn * vkq;
+          v[k][q] = sn * vkp + c * vkq;
+        }
+      }
+  }
+  int lo = 0;
+  if (a[1][1] < a[lo][lo]) lo = 1;
+  if (a[2][2] < a[lo][lo]) lo = 2;
+  if (middle_eigenvalue) {
+    const int i1 = (lo + 1) % 3, i2 = (lo + 2) % 3;
+    *middle_eigenvalue = fminf(a[i1][i1], a[i2][i2]);
+  }
+  Vec3f n{v[0][lo], v[1][lo], v[2][lo]};
+  const float len = sqrtf(dot(n, n));
+  return len > 0.f ? (1.f / len) * n : Vec3f{0.f, 0.f, 0.f};
+}
+
+/// Solves A x = b for a symmetric positive-definite N x N matrix (row-major, only the lower triangle read)
+/// by LDL^T without pivoting. Returns false if a pivot is not positive and finite.
+template <int N>
+PERCH2_HD inline bool ldlt_solve(const float* A, const float* b, float* x) {
+  float L[N][N];
+  float D[N];
+  for (int j = 0; j < N; ++j) {
+    float d = A[j * N + j];
+    for (int k = 0; k < j; ++k) d -= L[j][k] * L[j][k] * D[k];
+    if (!(d > 0.f) || !(d < 3.0e38f)) return false;
+    D[j] = d;
+    L[j][j] = 1.f;
+    for (int i = j + 1; i < N; ++i) {
+      float s = A[i * N + j];
+      for (int k = 0; k < j; ++k) s -= L[i][k] * L[j][k] * D[k];
+      L[i][j] = s / d;
+    }
+  }
+  float y[N];
+  for (int i = 0; i < N; ++i) {
+    float s = b[i];
+    for (int k = 0; k < i; ++k) s -= L[i][k] * y[k];
+    y[i] = s;
+  }
+  for (int i = N - 1; i >= 0; --i) {
+    float s = y[i] / D[i];
+    for (int k = i + 1; k < N; ++k) s -= L[k][i] * x[k];
+    x[i] = s;
+  }
+  return true;
+}
+
+/// Index of entry (r, c), r <= c, of a symmetric 6x6 matrix stored as its 21-entry upper triangle.
+PERCH2_HD inline int sym6_index(int r, int c) {
+  return r * 6 - r * (r - 1) / 2 + (c - r);
+}
+
+}  // namespace perch2::reg

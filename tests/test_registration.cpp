@@ -1,0 +1,519 @@
+// Registration: batched ICP (6-DoF and table x, y, yaw) and many-to-many GICP on every CPU-runnable backend.
+// Partial views are rendered by the reference renderer; sources are a known perturbation of a subset of the
+// target's samples, so the noise-free optimum is exactly the inverse perturbation.
+#include <Eigen/Geometry>
+#include <cmath>
+#include <random>
+
+#include "perch2/cpu/render.hpp"
+#include "perch2/io/mesh_io.hpp"
+#include "perch2/registration/device_math.hpp"
+#include "render_fixtures.hpp"
+#include "test_support.hpp"
+
+using namespace perch2;
+using perch2::test::vga_camera;
+
+namespace {
+
+constexpr float kDeg = 3.14159265f / 180.f;
+
+/// An L-shaped block with a knob: no rotational or mirror symmetry, so the registration is well posed.
+Mesh make_l_shape() {
+  Mesh out;
+  out.name = "L";
+  auto add_box = [&](float sx, float sy, float sz, Eigen::Vector3f at) {
+    const Mesh b = perch2::test::make_box(sx, sy, sz);
+    const int base = int(out.vertices.size());
+    for (const auto& v : b.vertices) out.vertices.push_back(v + at);
+    for (const auto& t : b.triangles) out.triangles.emplace_back(t + Eigen::Vector3i::Constant(base));
+  };
+  add_box(0.12f, 0.04f, 0.04f, {0.f, 0.f, 0.f});
+  add_box(0.04f, 0.08f, 0.04f, {0.04f, 0.06f, 0.f});
+  add_box(0.03f, 0.03f, 0.03f, {-0.045f, -0.01f, -0.035f});
+  return out;
+}
+
+/// T_cam_obj showing three faces of the object, 0.6 m in front of the camera.
+Pose view_pose() {
+  Pose T = Pose::Identity();
+  T.linear() = (Eigen::AngleAxisf(35 * kDeg, Eigen::Vector3f::UnitX()) *
+                Eigen::AngleAxisf(-40 * kDeg, Eigen::Vector3f::UnitY()) *
+                Eigen::AngleAxisf(10 * kDeg, Eigen::Vector3f::UnitZ()))
+                   .toRotationMatrix();
+  T.translation() = Eigen::Vector3f(0.02f, -0.01f, 0.6f);
+  return T;
+}
+
+CloudBatch render(const Mesh& mesh, const Pose& T_cam_obj, int stride) {
+  cpu::Renderer r({mesh});
+  RenderSettings s;
+  s.stride = stride;
+  return r.render({Hypothesis{0, T_cam_obj}}, vga_camera(), s);
+}
+
+Eigen::Vector3f centroid(const CloudBatch& c, std::size_t cloud = 0) {
+  Eigen::Vector3f m = Eigen::Vector3f::Zero();
+  for (auto i = c.offsets[cloud]; i < c.offsets[cloud + 1]; ++i) m += Eigen::Vector3f(c.x[i], c.y[i], c.z[i]);
+  return m / float(c.cloud_size(cloud));
+}
+
+/// A rotation of `angle` about a random axis through `pivot`, then a translation of `dist` metres.
+Pose perturbation(std::mt19937& rng, const Eigen::Vector3f& pivot, float angle, float dist) {
+  std::normal_distribution<float> g(0.f, 1.f);
+  const Eigen::Vector3f axis = Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+  const Eigen::Vector3f dir = Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+  Pose D = Pose::Identity();
+  D.linear() = Eigen::AngleAxisf(angle, axis).toRotationMatrix();
+  D.translation() = pivot - D.linear() * pivot + dist * dir;
+  return D;
+}
+
+/// Appends cloud `cloud` of `in`, moved by D, as a new cloud of `out`.
+void append_moved(CloudBatch& out, const CloudBatch& in, const Pose& D, std::size_t cloud = 0) {
+  const auto c = std::int32_t(out.num_clouds());
+  for (auto i = in.offsets[cloud]; i < in.offsets[cloud + 1]; ++i) {
+    const Eigen::Vector3f p = D * Eigen::Vector3f(in.x[i], in.y[i], in.z[i]);
+    out.x.push_back(p.x()), out.y.push_back(p.y()), out.z.push_back(p.z());
+    out.rgb.push_back(in.rgb[i]), out.pixel.push_back(in.pixel[i]), out.cloud.push_back(c);
+  }
+  out.offsets.push_back(std::int64_t(out.x.size()));
+}
+
+/// Rotation angle of R in radians, accurate for tiny angles too (atan2 of the skew and symmetric parts;
+/// acos of the trace alone loses ~3e-4 rad to float rounding).
+float rotation_angle(const Eigen::Matrix3f& Rf) {
+  const Eigen::Matrix3d R = Rf.cast<double>();
+  const Eigen::Vector3d s(R(2, 1) - R(1, 2), R(0, 2) - R(2, 0), R(1, 0) - R(0, 1));
+  return float(std::atan2(0.5 * s.norm(), 0.5 * (R.trace() - 1.0)));
+}
+
+/// Rotation angle (radians) and largest point displacement (metres, over the cloud) of E = T_corr * D,
+/// which is the identity for a perfect correction of perturbation D.
+struct PoseError {
+  float angle_rad, displacement_m;
+};
+PoseError correction_error(const Pose& T_corr, const Pose& D, const CloudBatch& c, std::size_t cloud = 0) {
+  const Pose E = T_corr * D;
+  const float angle = rotation_angle(E.linear());
+  float disp = 0;
+  for (auto i = c.offsets[cloud]; i < c.offsets[cloud + 1]; ++i) {
+    const Eigen::Vector3f p(c.x[i], c.y[i], c.z[i]);
+    disp = std::max(disp, (E * p - p).norm());
+  }
+  return {angle, disp};
+}
+
+struct Scene {
+  Mesh mesh = make_l_shape();
+  Pose T = view_pose();
+  CloudBatch target = render(mesh, T, 2);  // dense target
+  CloudBatch view = render(mesh, T, 4);    // its samples at multiples of 4: a subset of the target's
+};
+
+const Scene& scene() {
+  static const Scene s;
+  return s;
+}
+
+IcpSettings icp_settings() {
+  IcpSettings s;
+  s.max_iterations = 60;
+  s.max_correspondence_distance_m = 0.1f;  // covers 5 cm + 15 deg on a 12 cm object
+  return s;
+}
+
+GicpSettings gicp_settings() {
+  GicpSettings s;
+  s.max_iterations = 60;
+  s.max_correspondence_distance_m = 0.1f;
+  return s;
+}
+
+}  // namespace
+
+TEST_CASE("registration device math: so3_exp, LDL^T solve, smallest eigenvector") {
+  std::mt19937 rng(7);
+  std::normal_distribution<float> g(0.f, 1.f);
+  for (int t = 0; t < 50; ++t) {
+    const Eigen::Vector3f w = (t % 5 == 0 ? 1e-5f : 1.f) * Eigen::Vector3f(g(rng), g(rng), g(rng));
+    const Mat3f R = reg::so3_exp(to_vec3(w));
+    const Eigen::Matrix3f Re = Eigen::AngleAxisf(w.norm(), w.normalized()).toRotationMatrix();
+    for (int k = 0; k < 9; ++k) CHECK(R.m[k] == doctest::Approx(Re(k / 3, k % 3)).epsilon(1e-5));
+
+    Eigen::Matrix<float, 6, 6> B = Eigen::Matrix<float, 6, 6>::Random();
+    const Eigen::Matrix<float, 6, 6> A = B * B.transpose() + 0.5f * Eigen::Matrix<float, 6, 6>::Identity();
+    const Eigen::Matrix<float, 6, 1> b = Eigen::Matrix<float, 6, 1>::Random();
+    Eigen::Matrix<float, 6, 6, Eigen::RowMajor> Ar = A;
+    float x[6];
+    REQUIRE(reg::ldlt_solve<6>(Ar.data(), b.data(), x));
+    const Eigen::Matrix<float, 6, 1> xe = A.ldlt().solve(b);
+    // Condition number of A is at most ~100: float solves agree to ~1e-4 relative.
+    for (int k = 0; k < 6; ++k) CHECK(x[k] == doctest::Approx(xe(k)).epsilon(1e-3).scale(1));
+
+    const Eigen::Matrix3f Q =
+        Eigen::Quaternionf(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+    const Eigen::Matrix3f C = Q * Eigen::Vector3f(1e-6f, 1e-3f, 4e-3f).asDiagonal() * Q.transpose();
+    const Vec3f n = reg::smallest_eigenvector({C(0, 0), C(0, 1), C(0, 2), C(1, 1), C(1, 2), C(2, 2)});
+    // The smallest eigenvalue is separated by 1e-3 from the next: the normal is accurate to ~1e-4.
+    CHECK(std::abs(Eigen::Vector3f(n.x, n.y, n.z).dot(Q.col(0))) == doctest::Approx(1.f).epsilon(1e-4));
+  }
+  // Singular or empty input: a defined "no normal" / failed solve, never NaN.
+  const Vec3f z = reg::smallest_eigenvector({0, 0, 0, 0, 0, 0});
+  CHECK((z.x == 0 && z.y == 0 && z.z == 0));
+  const float Z[9] = {0, 0, 0, 0, 1, 0, 0, 0, 1}, r[3] = {1, 1, 1};
+  float x3[3];
+  CHECK_FALSE(reg::ldlt_solve<3>(Z, r, x3));
+}
+
+TEST_CASE_TEMPLATE("ICP and GICP recover known perturbations exactly (noise-free)", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  const Scene& sc = scene();
+  REQUIRE(sc.view.size() > 300);
+  REQUIRE(sc.target.size() > 3 * sc.view.size());
+  std::mt19937 rng(11);
+  const Eigen::Vector3f c = centroid(sc.view);
+  CloudBatch sources;
+  std::vector<Pose> D;
+  // Up to 5 cm and 15 degrees, the limits the issue names, plus smaller ones.
+  const float angles[] = {15, 15, 10, 5, 15, 2};
+  const float dists[] = {0.05f, 0.03f, 0.05f, 0.02f, 0.f, 0.05f};
+  for (int k = 0; k < 6; ++k) {
+    D.push_back(perturbation(rng, c, angles[k] * kDeg, dists[k]));
+    append_moved(sources, sc.view, D.back());
+  }
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  typename B::Registration reg(sc.target);
+
+  SUBCASE("point-to-point ICP") {
+    // Point-to-point ICP on planar faces sampled on a pixel lattice can lock onto a lattice-shifted local
+    // minimum (measured on this shape: 1.0-1.4 deg, 2.3-3 mm, RMS residual 1.2-1.4 mm, from 10-40% of random
+    // starts up to 15 deg / 5 cm; GICP never did). So here ICP must converge to within that lock distance;
+    // its exact recovery is asserted on the curved real object (next test case) and on small perturbations.
+    const RegistrationResult r = reg.icp(sources, seg, icp_settings());
+    REQUIRE(r.size() == sources.num_clouds());
+    for (std::size_t h = 0; h < r.size(); ++h) {
+      CAPTURE(h);
+      const PoseError e = correction_error(r.T_corr[h], D[h], sources, h);
+      CHECK(r.converged[h] == 1);
+      CHECK(e.angle_rad < 2.f * kDeg);
+      CHECK(e.displacement_m < 4e-3f);
+      CHECK(r.inliers[h] == int(sources.cloud_size(h)));
+      if (angles[h] <= 10 && dists[h] <= 0.02f) {
+        CHECK(e.angle_rad < 0.1f * kDeg);
+        CHECK(e.displacement_m < 1e-3f);
+        CHECK(r.final_error[h] < 1e-4f);  // the source is a subset of the target: residuals ~ float rounding
+      }
+    }
+  }
+  SUBCASE("GICP, source covariances from k nearest neighbours") {
+    const RegistrationResult r = reg.gicp(sources, seg, gicp_settings());
+    for (std::size_t h = 0; h < r.size(); ++h) {
+      CAPTURE(h);
+      const PoseError e = correction_error(r.T_corr[h], D[h], sources, h);
+      CHECK(r.converged[h] == 1);
+      CHECK(e.angle_rad < 0.1f * kDeg);
+      CHECK(e.displacement_m < 1e-3f);
+      CHECK(r.final_error[h] < 1e-4f);
+    }
+  }
+  SUBCASE("GICP, source covariances from the render's pixel neighbourhood") {
+    GicpSettings s = gicp_settings();
+    s.source_covariance = SourceCovariance::FromPixelNeighbourhood;
+    s.image_width_px = vga_camera().width;
+    const RegistrationResult r = reg.gicp(sources, seg, s);
+    for (std::size_t h = 0; h < r.size(); ++h) {
+      CAPTURE(h);
+      const PoseError e = correction_error(r.T_corr[h], D[h], sources, h);
+      CHECK(r.converged[h] == 1);
+      CHECK(e.angle_rad < 0.1f * kDeg);
+      CHECK(e.displacement_m < 1e-3f);
+    }
+  }
+}
+
+TEST_CASE_TEMPLATE("registration on the real LINEMOD cat recovers perturbations", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  PERCH2_REQUIRE_SHARED_DATA(path, "models/linemod_obj_06/obj_06.ply");
+  io::MeshLoadOptions opt;
+  opt.scale = 0.001f;  // millimetres
+  const Mesh cat = io::load_mesh(path, opt);
+  Pose T = view_pose();
+  const CloudBatch target = render(cat, T, 2), view = render(cat, T, 4);
+  REQUIRE(view.size() > 200);
+  std::mt19937 rng(5);
+  CloudBatch sources;
+  std::vector<Pose> D;
+  for (int k = 0; k < 4; ++k) {
+    D.push_back(perturbation(rng, centroid(view), 15 * kDeg, 0.05f));
+    append_moved(sources, view, D.back());
+  }
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  typename B::Registration reg(target);
+  for (const bool gicp : {false, true}) {
+    CAPTURE(gicp);
+    const RegistrationResult r =
+        gicp ? reg.gicp(sources, seg, gicp_settings()) : reg.icp(sources, seg, icp_settings());
+    for (std::size_t h = 0; h < r.size(); ++h) {
+      CAPTURE(h);
+      const PoseError e = correction_error(r.T_corr[h], D[h], sources, h);
+      CHECK(e.angle_rad < 0.1f * kDeg);
+      CHECK(e.displacement_m < 1e-3f);
+    }
+  }
+}
+
+TEST_CASE_TEMPLATE("registration degrades gracefully with noise and outliers", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  const Scene& sc = scene();
+  std::mt19937 rng(3);
+  std::normal_distribution<float> noise(0.f, 0.001f);  // 1 mm sensor noise on source and target
+  std::uniform_real_distribution<float> box(-0.06f, 0.06f);
+  const Eigen::Vector3f c = centroid(sc.view);
+  CloudBatch target = sc.target;
+  for (std::size_t i = 0; i < target.size(); ++i)
+    target.x[i] += noise(rng), target.y[i] += noise(rng), target.z[i] += noise(rng);
+  CloudBatch sources;
+  std::vector<Pose> D;
+  for (int k = 0; k < 4; ++k) {
+    D.push_back(perturbation(rng, c, 10 * kDeg, 0.03f));
+    append_moved(sources, sc.view, D.back());
+  }
+  // Noise on every source point, and 10% of the points replaced by outliers anywhere in a 12 cm box.
+  std::uniform_real_distribution<float> u01(0.f, 1.f);
+  for (std::size_t i = 0; i < sources.size(); ++i) {
+    if (u01(rng) < 0.1f) {
+      sources.x[i] = c.x() + box(rng), sources.y[i] = c.y() + box(rng), sources.z[i] = c.z() + box(rng);
+    } else {
+      sources.x[i] += noise(rng), sources.y[i] += noise(rng), sources.z[i] += noise(rng);
+    }
+  }
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  typename B::Registration reg(target);
+  IcpSettings is = icp_settings();
+  GicpSettings gs = gicp_settings();
+  // A tighter correspondence cap (a common second stage) would reject most outliers; this keeps the 10 cm
+  // cap of the noise-free test, so outliers pull on the solution.
+  const RegistrationResult ri = reg.icp(sources, seg, is), rg = reg.gicp(sources, seg, gs);
+  for (std::size_t h = 0; h < sources.num_clouds(); ++h) {
+    CAPTURE(h);
+    // Bounds: 1 mm noise averages out over ~600 points, but 10% outliers up to 6 cm away (inside the 10 cm
+    // correspondence cap) bias a least-squares fit. Measured on both backends: ICP 2.0-2.8 deg / 4.4-8.6 mm,
+    // GICP 0.28-1.3 deg / 0.65-3.0 mm. Asserted: ICP < 4 deg / 10 mm, GICP < 2 deg / 4 mm.
+    const PoseError ei = correction_error(ri.T_corr[h], D[h], sources, h);
+    const PoseError eg = correction_error(rg.T_corr[h], D[h], sources, h);
+    MESSAGE("noisy ICP: " << ei.angle_rad / kDeg << " deg, " << ei.displacement_m * 1e3f << " mm; GICP: "
+                          << eg.angle_rad / kDeg << " deg, " << eg.displacement_m * 1e3f << " mm");
+    CHECK(ei.angle_rad < 4 * kDeg);
+    CHECK(ei.displacement_m < 10e-3f);
+    CHECK(eg.angle_rad < 2 * kDeg);
+    CHECK(eg.displacement_m < 4e-3f);
+    CHECK(ri.final_error[h] > 1e-3f);  // noise shows in the residual...
+    CHECK(ri.final_error[h] < 0.03f);  // ...but the fit is not lost
+  }
+}
+
+TEST_CASE_TEMPLATE("table x, y, yaw ICP never changes height, roll or pitch", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  const Scene& sc = scene();
+  std::mt19937 rng(19);
+  // A table whose normal is tilted in the camera frame, through a point below the object.
+  const Eigen::Vector3f up = Eigen::Vector3f(0.1f, -1.f, -0.4f).normalized();
+  const Eigen::Vector3f origin = centroid(sc.view) - 0.05f * up;
+  CloudBatch sources;
+  std::vector<Pose> D;
+  for (int k = 0; k < 4; ++k) {
+    // The perturbation includes out-of-table motion (5 mm along up, 3 degrees of tilt) that x, y, yaw must
+    // not try to undo, and an in-table part it should undo.
+    Pose yaw = Pose::Identity();
+    yaw.linear() = Eigen::AngleAxisf((k % 2 ? 12.f : -12.f) * kDeg, up).toRotationMatrix();
+    yaw.translation() = origin - yaw.linear() * origin;
+    Eigen::Vector3f e1, e2;
+    plane_basis(up, e1, e2);
+    Pose shift = Pose::Identity();
+    shift.translation() = 0.03f * (k < 2 ? e1 : e2) + (k == 3 ? 0.005f : 0.f) * up;
+    Pose tilt = k == 2 ? perturbation(rng, origin, 3 * kDeg, 0.f) : Pose::Identity();
+    D.push_back(shift * yaw * tilt);
+    append_moved(sources, sc.view, D.back());
+  }
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  typename B::Registration reg(sc.target);
+  IcpSettings s = icp_settings();
+  s.dof = Dof::TableXYYaw;
+  s.up_cam = up;
+  s.origin_cam = origin;
+  GicpSettings gs = gicp_settings();
+  gs.dof = Dof::TableXYYaw;
+  gs.up_cam = up;
+  gs.origin_cam = origin;
+  for (const bool gicp : {false, true}) {
+    CAPTURE(gicp);
+    const RegistrationResult r = gicp ? reg.gicp(sources, seg, gs) : reg.icp(sources, seg, s);
+    for (std::size_t h = 0; h < r.size(); ++h) {
+      CAPTURE(h);
+      const Pose& T = r.T_corr[h];
+      // Height along up of every point, and the up direction itself, are invariant: R up = up and
+      // up . (T p - p) = 0. Float rounding of ~60 composed increments stays below 1e-5.
+      CHECK((T.linear() * up - up).norm() < 1e-5f);
+      float max_height_change = 0;
+      for (auto i = sources.offsets[h]; i < sources.offsets[h + 1]; ++i) {
+        const Eigen::Vector3f p(sources.x[i], sources.y[i], sources.z[i]);
+        max_height_change = std::max(max_height_change, std::abs(up.dot(T * p - p)));
+      }
+      CHECK(max_height_change < 1e-5f);
+      CHECK(r.iterations[h] > 1);
+      if (h < 2) {  // pure in-table perturbations are undone exactly
+        const PoseError e = correction_error(T, D[h], sources, h);
+        CHECK(e.angle_rad < 0.1f * kDeg);
+        CHECK(e.displacement_m < 1e-3f);
+      }
+    }
+  }
+}
+
+TEST_CASE("backends agree on ICP and GICP") {
+  const Scene& sc = scene();
+  std::mt19937 rng(23);
+  std::normal_distribution<float> noise(0.f, 0.001f);
+  const Eigen::Vector3f c = centroid(sc.view);
+  CloudBatch sources;
+  std::vector<Pose> D;
+  for (int k = 0; k < 6; ++k) {
+    D.push_back(perturbation(rng, c, 8 * kDeg, 0.02f));
+    append_moved(sources, sc.view, D.back());
+  }
+  for (std::size_t i = 0; i < sources.size(); ++i) sources.z[i] += noise(rng);
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  cpu::Registration ref(sc.target);
+  thrust_omp::Backend::Registration omp(sc.target);
+  for (const bool gicp : {false, true}) {
+    CAPTURE(gicp);
+    const RegistrationResult a =
+        gicp ? ref.gicp(sources, seg, gicp_settings()) : ref.icp(sources, seg, icp_settings());
+    const RegistrationResult b =
+        gicp ? omp.gicp(sources, seg, gicp_settings()) : omp.icp(sources, seg, icp_settings());
+    for (std::size_t h = 0; h < a.size(); ++h) {
+      CAPTURE(h);
+      // Both converge (steps < 1e-5 m / rad) to the same minimum of the same cost; the reference sums in
+      // double, the Thrust backend in float (measured: <= 0.0011 deg, <= 1 um apart, though the float run may
+      // take more iterations). Asserted: 0.01 deg and 0.1 mm.
+      const Pose E = a.T_corr[h].inverse() * b.T_corr[h];
+      CHECK(rotation_angle(E.linear()) < 0.01f * kDeg);
+      CHECK((b.T_corr[h] * c - a.T_corr[h] * c).norm() < 1e-4f);
+      CHECK(std::abs(a.inliers[h] - b.inliers[h]) <= 2);  // points exactly at the cap may flip
+      CHECK(a.final_error[h] == doctest::Approx(b.final_error[h]).epsilon(1e-2));
+    }
+  }
+}
+
+TEST_CASE_TEMPLATE("a hypothesis that hits max_iterations keeps its last iterate", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  const Scene& sc = scene();
+  std::mt19937 rng(29);
+  const Pose D = perturbation(rng, centroid(sc.view), 15 * kDeg, 0.05f);
+  CloudBatch sources;
+  append_moved(sources, sc.view, D);
+  typename B::Registration reg(sc.target);
+  IcpSettings s = icp_settings();
+  s.max_iterations = 3;
+  const RegistrationResult r = reg.icp(sources, {0}, s);
+  CHECK(r.converged[0] == 0);
+  CHECK(r.iterations[0] == 3);
+  // Not the identity: the last accepted iterate, already closer than the start.
+  const PoseError start = correction_error(Pose::Identity(), D, sources);
+  const PoseError now = correction_error(r.T_corr[0], D, sources);
+  CHECK(!r.T_corr[0].isApprox(Pose::Identity()));
+  CHECK(now.displacement_m < 0.8f * start.displacement_m);
+  CHECK(r.inliers[0] > 0);
+  CHECK(std::isfinite(r.final_error[0]));
+}
+
+TEST_CASE_TEMPLATE("segments are isolated; empty clouds and segments give a defined result", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  const Scene& sc = scene();
+  // Targets: segment 0 = the object, segment 1 = empty, segment 2 = the object shifted by 3 cm (a decoy
+  // that would pull sources of segment 0 if it were searched).
+  CloudBatch targets;
+  append_moved(targets, sc.target, Pose::Identity());
+  targets.offsets.push_back(targets.offsets.back());
+  Pose shift = Pose::Identity();
+  shift.translation() = Eigen::Vector3f(0.03f, 0.f, 0.f);
+  append_moved(targets, sc.target, shift);
+  for (std::size_t i = std::size_t(targets.offsets[2]); i < targets.size(); ++i) targets.cloud[i] = 2;
+  std::mt19937 rng(31);
+  const Pose D = perturbation(rng, centroid(sc.view), 10 * kDeg, 0.02f);
+  CloudBatch sources;
+  append_moved(sources, sc.view, D);                  // 0 -> segment 0
+  sources.offsets.push_back(sources.offsets.back());  // 1: empty source cloud
+  append_moved(sources, sc.view, D);                  // 2 -> empty segment 1
+  append_moved(sources, sc.view, D);                  // 3 -> decoy segment 2
+  typename B::Registration reg(targets);
+  CHECK(reg.num_segments() == 3);
+  const std::vector<std::int32_t> seg = {0, 0, 1, 2};
+  for (const bool gicp : {false, true}) {
+    CAPTURE(gicp);
+    const RegistrationResult r =
+        gicp ? reg.gicp(sources, seg, gicp_settings()) : reg.icp(sources, seg, icp_settings());
+    REQUIRE(r.size() == 4);
+    const PoseError e0 = correction_error(r.T_corr[0], D, sources, 0);
+    CHECK(e0.displacement_m < 1e-3f);
+    for (const std::size_t h : {std::size_t(1), std::size_t(2)}) {  // nothing to align: identity, flagged
+      CAPTURE(h);
+      CHECK(r.T_corr[h].isApprox(Pose::Identity()));
+      CHECK(r.converged[h] == 0);
+      CHECK(r.inliers[h] == 0);
+      CHECK(std::isinf(r.final_error[h]));
+    }
+    const PoseError e3 = correction_error(shift.inverse() * r.T_corr[3], D, sources, 3);
+    CHECK(e3.displacement_m < 1e-3f);  // aligned to the decoy, i.e. its own segment
+  }
+}
+
+TEST_CASE_TEMPLATE("registration rejects bad input with a clear error", B, PERCH2_CPU_RUNNABLE_BACKENDS) {
+  const Scene& sc = scene();
+  CloudBatch empty_targets;
+  CHECK_THROWS_WITH_AS(typename B::Registration{empty_targets}, doctest::Contains("no segments"),
+                       InvalidInput);
+  CloudBatch nan_targets = sc.target;
+  nan_targets.y[5] = NAN;
+  CHECK_THROWS_WITH_AS(typename B::Registration{nan_targets}, doctest::Contains("not finite"), InvalidInput);
+
+  typename B::Registration reg(sc.target);
+  const CloudBatch& src = sc.view;
+  CHECK_THROWS_WITH_AS(reg.icp(src, {1}, IcpSettings{}), doctest::Contains("source_segment"), InvalidInput);
+  CHECK_THROWS_WITH_AS(reg.icp(src, {-1}, IcpSettings{}), doctest::Contains("source_segment"), InvalidInput);
+  CHECK_THROWS_WITH_AS(reg.icp(src, {0, 0}, IcpSettings{}), doctest::Contains("2 entries for 1"),
+                       InvalidInput);
+  CloudBatch bad = src;
+  bad.offsets.back() += 1;
+  CHECK_THROWS_WITH_AS(reg.icp(bad, {0}, IcpSettings{}), doctest::Contains("offsets"), InvalidInput);
+
+  IcpSettings s;
+  s.max_iterations = 0;
+  CHECK_THROWS_WITH_AS(reg.icp(src, {0}, s), doctest::Contains("IcpSettings::max_iterations"), InvalidInput);
+  s = {};
+  s.max_correspondence_distance_m = -1;
+  CHECK_THROWS_WITH_AS(reg.icp(src, {0}, s), doctest::Contains("max_correspondence_distance_m"),
+                       InvalidInput);
+  s = {};
+  s.dof = Dof::TableXYYaw;
+  s.up_cam = Eigen::Vector3f::Zero();
+  CHECK_THROWS_WITH_AS(reg.icp(src, {0}, s), doctest::Contains("up_cam"), InvalidInput);
+  s = {};
+  s.lm.lambda_up = 0.5f;
+  CHECK_THROWS_WITH_AS(reg.icp(src, {0}, s), doctest::Contains("lambda_up"), InvalidInput);
+
+  GicpSettings g;
+  g.k_neighbors = 2;
+  CHECK_THROWS_WITH_AS(reg.gicp(src, {0}, g), doctest::Contains("k_neighbors"), InvalidInput);
+  g = {};
+  g.covariance_epsilon = 0;
+  CHECK_THROWS_WITH_AS(reg.gicp(src, {0}, g), doctest::Contains("covariance_epsilon"), InvalidInput);
+  g = {};
+  g.source_covariance = SourceCovariance::FromPixelNeighbourhood;  // image_width_px not set
+  CHECK_THROWS_WITH_AS(reg.gicp(src, {0}, g), doctest::Contains("image_width_px"), InvalidInput);
+  g.image_width_px = 640;
+  CloudBatch no_pixels = src;
+  no_pixels.pixel[0] = -1;
+  CHECK_THROWS_WITH_AS(reg.gicp(no_pixels, {0}, g), doctest::Contains("no pixel index"), InvalidInput);
+}
