@@ -4,6 +4,8 @@
 // equations summed per block), step over hypotheses (sum the hypothesis' blocks in a fixed order, LM accept/
 // reject, damped LDL^T solve, pose update, convergence flag) }. Converged or stopped hypotheses skip both.
 // The host only launches passes: the one device->host copy is the final per-hypothesis state.
+// The targets live in the kNN stage's KnnIndex<System>: correspondences and target normals are grid_knn ball
+// searches started from its per-cell representatives (exact, within the correspondence distance cap).
 #include <thrust/copy.h>
 #include <thrust/device_vector.h>
 #include <thrust/execution_policy.h>
@@ -16,6 +18,7 @@
 #include <mutex>
 
 #include "perch2/core/segments.hpp"
+#include "perch2/cuda/knn.hpp"
 #include "perch2/cuda/registration.hpp"
 #include "perch2/knn/grid.hpp"
 #include "perch2/knn/scan.hpp"
@@ -394,7 +397,7 @@ struct StepHypothesis {
     ++st.iterations;
     const bool accept = !st.have_acc || a.cost_old <= st.cost_acc;
     if (accept) {
-      if (st.have_acc) st.lambda = fmaxf(st.lambda * P.lambda_down, P.lambda_min);
+      if (st.have_acc) st.lambda = max_f(st.lambda * P.lambda_down, P.lambda_min);
       st.T_acc = st.T_cand;
       st.buf = 1 - st.buf;
       for (int k = 0; k < 21; ++k) st.H[k] = a.H[k];
@@ -464,31 +467,30 @@ struct StepHypothesis {
 
 template <class System>
 struct Registration<System>::Impl {
-  std::size_t num_segments = 0;
-  thrust::device_vector<Vec3f> target_points;
-  thrust::device_vector<std::int64_t> target_offsets;
-  thrust::device_vector<GridSegment> grid_segments;
-  thrust::device_vector<std::int32_t> grid_cell_start, grid_point_index;
-  thrust::device_vector<Vec3f> grid_points;
+  /// The kNN stage's index over the targets: points in batch order, segment offsets and the uniform grid
+  /// with its cell representatives (grid_knn's ball search), all on the device. Built once.
+  KnnIndex<System> index;
   mutable std::mutex mutex;
   mutable std::map<int, thrust::device_vector<Vec3f>> target_normals;  // by k_neighbors
 
-  GridView grid() const {
-    using reg_detail::ptr;
-    return {ptr(grid_segments), int(grid_segments.size()), ptr(grid_cell_start), ptr(grid_points),
-            ptr(grid_point_index)};
-  }
+  explicit Impl(const CloudBatch& targets) : index(targets) {}
+
+  GridView grid() const { return index.view().grid; }
+  const Vec3f* target_points() const { return index.view().points; }
+  std::size_t num_segments() const { return index.num_segments(); }
 
   const thrust::device_vector<Vec3f>& normals(int k) const {
     std::lock_guard<std::mutex> lock(mutex);
     auto it = target_normals.find(k);
     if (it != target_normals.end()) return it->second;
-    thrust::device_vector<Vec3f> n(target_points.size());
+    const KnnView v = index.view();
+    const std::int64_t num_points = std::int64_t(index.num_points());
+    thrust::device_vector<Vec3f> n(static_cast<std::size_t>(num_points));
     using reg_detail::ptr;
-    thrust::for_each(thrust::device, thrust::counting_iterator<std::int64_t>(0),
-                     thrust::counting_iterator<std::int64_t>(std::int64_t(target_points.size())),
-                     reg_detail::TargetNormals{grid(), ptr(target_points), ptr(target_offsets),
-                                               int(num_segments), k, ptr(n)});
+    thrust::for_each(
+        thrust::device, thrust::counting_iterator<std::int64_t>(0),
+        thrust::counting_iterator<std::int64_t>(num_points),
+        reg_detail::TargetNormals{v.grid, v.points, v.segment_offsets, v.num_segments, k, ptr(n)});
     return target_normals.emplace(k, std::move(n)).first->second;
   }
 
@@ -566,7 +568,7 @@ struct Registration<System>::Impl {
         reg_detail::InitState{ptr(points), ptr(offsets), P.lambda_initial, ptr(centroid), ptr(state)});
     const reg_detail::LinearizeBlock pass{P,
                                           grid(),
-                                          ptr(target_points),
+                                          target_points(),
                                           tn,
                                           ptr(points),
                                           gs ? ptr(normals) : nullptr,
@@ -632,19 +634,11 @@ Params make_params(const S& s, bool gicp, float eps) {
 }  // namespace reg_detail
 
 template <class System>
-Registration<System>::Registration(const CloudBatch& targets) : impl_(std::make_unique<Impl>()) {
+Registration<System>::Registration(const CloudBatch& targets) {
   validate_registration_targets(targets);
-  impl_->num_segments = targets.num_clouds();
-  std::vector<Vec3f> pts(targets.size());
-  for (std::size_t i = 0; i < targets.size(); ++i) pts[i] = targets.point(i);
-  impl_->target_points.assign(pts.begin(), pts.end());
-  impl_->target_offsets.assign(targets.offsets.begin(), targets.offsets.end());
-  // The grid is planned and sorted on the host once (kNN stage layout), then uploaded.
-  const HostGrid g(targets);
-  impl_->grid_segments.assign(g.segments.begin(), g.segments.end());
-  impl_->grid_cell_start.assign(g.cell_start.begin(), g.cell_start.end());
-  impl_->grid_points.assign(g.points.begin(), g.points.end());
-  impl_->grid_point_index.assign(g.point_index.begin(), g.point_index.end());
+  // The kNN stage's index: uploads the targets once and builds the grid and its cell representatives on the
+  // device (counting sort and jump flooding, perch2/knn/grid.hpp).
+  impl_ = std::make_unique<Impl>(targets);
 }
 
 template <class System>
@@ -656,7 +650,7 @@ Registration<System>& Registration<System>::operator=(Registration&&) noexcept =
 
 template <class System>
 std::size_t Registration<System>::num_segments() const {
-  return impl_->num_segments;
+  return impl_->num_segments();
 }
 
 template <class System>
@@ -664,7 +658,7 @@ RegistrationResult Registration<System>::icp(const CloudBatch& sources,
                                              const std::vector<std::int32_t>& source_segment,
                                              const IcpSettings& settings) const {
   validate(settings);
-  validate_registration_sources(sources, source_segment, impl_->num_segments);
+  validate_registration_sources(sources, source_segment, impl_->num_segments());
   return impl_->run(sources, source_segment, reg_detail::make_params(settings, false, 1.f), nullptr);
 }
 
@@ -673,7 +667,7 @@ RegistrationResult Registration<System>::gicp(const CloudBatch& sources,
                                               const std::vector<std::int32_t>& source_segment,
                                               const GicpSettings& settings) const {
   validate(settings);
-  validate_registration_sources(sources, source_segment, impl_->num_segments,
+  validate_registration_sources(sources, source_segment, impl_->num_segments(),
                                 settings.source_covariance == SourceCovariance::FromPixelNeighbourhood);
   return impl_->run(sources, source_segment,
                     reg_detail::make_params(settings, true, settings.covariance_epsilon), &settings);

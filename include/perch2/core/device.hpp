@@ -20,8 +20,9 @@ PERCH2_HD inline int max_int(int a, int b) {
   return a > b ? a : b;
 }
 
-/// min/max that compile to single instructions (fminf/fmaxf are libm calls on x86 for NaN semantics);
-/// callers only pass finite values.
+/// min/max that compile to single instructions (fminf/fmaxf are libm calls on x86 for NaN semantics).
+/// NaN: if either argument is NaN the result is b (the comparison fails), so a caller whose first argument
+/// may be NaN gets fminf/fmaxf's answer by passing the never-NaN value second.
 PERCH2_HD inline float min_f(float a, float b) {
   return a < b ? a : b;
 }

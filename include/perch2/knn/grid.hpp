@@ -92,8 +92,9 @@ PERCH2_HD inline std::int64_t grid_local_cell(const GridSegment& s, Vec3f p) {
 }
 
 /// Squared distance from v to the interval [lo - slack, hi + slack].
+/// A NaN v gives 0: max_f returns its second argument when the comparison fails.
 PERCH2_HD inline float grid_gap2(float v, float lo, float hi, float slack) {
-  const float g = fmaxf(fmaxf(lo - slack - v, v - hi - slack), 0.f);
+  const float g = max_f(max_f(lo - slack - v, v - hi - slack), 0.f);
   return g * g;
 }
 
@@ -174,15 +175,15 @@ PERCH2_HD inline int grid_knn_rings(const GridView& g, int segment, Vec3f q, int
     // Lower bound on the distance to every unvisited cell: the nearest of the (up to) six slabs of the grid
     // outside the visited block [c - r, c + r].
     float lb2 = INFINITY;
-    if (cx - r > 0) lb2 = fminf(lb2, grid_cells_gap2(q.x, ox, cell, 0, cx - r - 1, slack) + gy + gz);
+    if (cx - r > 0) lb2 = min_f(lb2, grid_cells_gap2(q.x, ox, cell, 0, cx - r - 1, slack) + gy + gz);
     if (cx + r < s.nx - 1)
-      lb2 = fminf(lb2, grid_cells_gap2(q.x, ox, cell, cx + r + 1, s.nx - 1, slack) + gy + gz);
-    if (cy - r > 0) lb2 = fminf(lb2, gx + grid_cells_gap2(q.y, oy, cell, 0, cy - r - 1, slack) + gz);
+      lb2 = min_f(lb2, grid_cells_gap2(q.x, ox, cell, cx + r + 1, s.nx - 1, slack) + gy + gz);
+    if (cy - r > 0) lb2 = min_f(lb2, gx + grid_cells_gap2(q.y, oy, cell, 0, cy - r - 1, slack) + gz);
     if (cy + r < s.ny - 1)
-      lb2 = fminf(lb2, gx + grid_cells_gap2(q.y, oy, cell, cy + r + 1, s.ny - 1, slack) + gz);
-    if (cz - r > 0) lb2 = fminf(lb2, gx + gy + grid_cells_gap2(q.z, oz, cell, 0, cz - r - 1, slack));
+      lb2 = min_f(lb2, gx + grid_cells_gap2(q.y, oy, cell, cy + r + 1, s.ny - 1, slack) + gz);
+    if (cz - r > 0) lb2 = min_f(lb2, gx + gy + grid_cells_gap2(q.z, oz, cell, 0, cz - r - 1, slack));
     if (cz + r < s.nz - 1)
-      lb2 = fminf(lb2, gx + gy + grid_cells_gap2(q.z, oz, cell, cz + r + 1, s.nz - 1, slack));
+      lb2 = min_f(lb2, gx + gy + grid_cells_gap2(q.z, oz, cell, cz + r + 1, s.nz - 1, slack));
     if (lb2 == INFINITY || lb2 > max_d2 || d2[k - 1] < lb2) break;
   }
   return knn_count(k, idx);
@@ -248,9 +249,9 @@ PERCH2_HD inline int grid_knn(const GridView& g, int segment, Vec3f q, int k, fl
               gy = grid_cells_gap2(q.y, oy, cell, 0, ny - 1, slack),
               gz = grid_cells_gap2(q.z, oz, cell, 0, nz - 1, slack);
   if (gx + gy + gz > max_d2) return 0;
-  const float fx = fmaxf(fabsf(q.x - ox), fabsf(q.x - (ox + float(nx) * cell))) + slack;
-  const float fy = fmaxf(fabsf(q.y - oy), fabsf(q.y - (oy + float(ny) * cell))) + slack;
-  const float fz = fmaxf(fabsf(q.z - oz), fabsf(q.z - (oz + float(nz) * cell))) + slack;
+  const float fx = max_f(fabsf(q.x - ox), fabsf(q.x - (ox + float(nx) * cell))) + slack;
+  const float fy = max_f(fabsf(q.y - oy), fabsf(q.y - (oy + float(ny) * cell))) + slack;
+  const float fz = max_f(fabsf(q.z - oz), fabsf(q.z - (oz + float(nz) * cell))) + slack;
   const float far2 = fx * fx + fy * fy + fz * fz;  // every point of the segment lies within this
   const std::int64_t c = s.cell_base + grid_local_cell(s, q);
   const std::int32_t rep = g.cell_rep[c];
@@ -261,7 +262,7 @@ PERCH2_HD inline int grid_knn(const GridView& g, int segment, Vec3f q, int k, fl
   }
   while (true) {
     const bool last = ball2 >= max_d2 || ball2 >= far2;
-    const float limit = fminf(ball2, max_d2);
+    const float limit = min_f(max_d2, ball2);  // ball2 is never NaN (a NaN max_d2 gives ball2)
     knn_clear(k, idx, d2);
     grid_ball_scan(g, s, q, k, limit, idx, d2);
     if (last || idx[k - 1] >= 0) break;  // the ball holds k points: they are the k nearest

@@ -33,7 +33,7 @@ enum class KnnMethod {
   Auto,        ///< PerQuery for small segments, else Grid (see KnnSettings::auto_scan_max_points)
   BruteForce,  ///< kNN I: all pairwise distances of a tile of queries, tiled under memory_budget_bytes
   PerQuery,    ///< kNN II: one query per thread scanning its segment with a small-k sorted insertion
-  Grid,        ///< uniform spatial grid per segment, rings of cells (exact)
+  Grid,        ///< uniform spatial grid per segment, ball search from per-cell representatives (exact)
 };
 
 inline const char* to_string(KnnMethod m) {

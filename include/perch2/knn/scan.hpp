@@ -34,9 +34,10 @@ PERCH2_HD inline void knn_clear(int k, std::int32_t* idx, float* d2) {
 }
 
 /// The largest squared distance a candidate may have to enter a full list (or any list, given max_d2):
-/// min(d2[k-1], max_d2). A cheap first filter; knn_push() does the exact test.
+/// min(d2[k-1], max_d2). A cheap first filter; knn_push() does the exact test. d2[k-1] is never NaN (knn_push
+/// only stores distances <= max_d2), so a NaN max_d2 yields d2[k-1] (and knn_push rejects every candidate).
 PERCH2_HD inline float knn_bound(int k, const float* d2, float max_d2) {
-  return fminf(d2[k - 1], max_d2);
+  return min_f(max_d2, d2[k - 1]);
 }
 
 /// Inserts candidate (cand_d2, cand) into the sorted list if it beats the last slot and is within max_d2.

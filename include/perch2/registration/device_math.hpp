@@ -142,7 +142,7 @@ PERCH2_HD inline Vec3f smallest_eigenvector(Sym3 s, float* middle_eigenvalue = n
   if (a[2][2] < a[lo][lo]) lo = 2;
   if (middle_eigenvalue) {
     const int i1 = (lo + 1) % 3, i2 = (lo + 2) % 3;
-    *middle_eigenvalue = fminf(a[i1][i1], a[i2][i2]);
+    *middle_eigenvalue = min_f(a[i1][i1], a[i2][i2]);
   }
   Vec3f n{v[0][lo], v[1][lo], v[2][lo]};
   const float len = sqrtf(dot(n, n));
