@@ -1,6 +1,6 @@
 // Render throughput and peak memory: 2,000 poses of a ~10k-triangle mesh, 640x480, strides 1/4/8, per
 // backend.
-//   bench_render [--runs N] [--poses N] [--model FILE --scale S]
+//   bench_render [--runs N] [--poses N] [--stride S] [--backend cpu|thrust_omp] [--model FILE --scale S]
 // Default mesh: a procedural 10,224-triangle lumpy sphere with vertex colours (always available); with
 // ../shared/data present the YCB banana (15,728 triangles, 4096^2 texture) is measured too.
 #include <omp.h>
@@ -60,16 +60,21 @@ std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
   return out;
 }
 
+std::vector<int> strides = {1, 4, 8};
+std::string only_backend;  // empty: all
+
 template <class Renderer>
-void measure(const char* backend, const Mesh& mesh, const std::vector<Hypothesis>& hyps, int runs,
+void measure(const char* backend, Mesh& mesh, const std::vector<Hypothesis>& hyps, int runs,
              double reference_rate[3]) {
   const Intrinsics K{615.f, 615.f, 319.5f, 239.5f, 640, 480};
-  const int strides[3] = {1, 4, 8};
-  for (int k = 0; k < 3; ++k) {
+  for (std::size_t k = 0; k < strides.size(); ++k) {
     RenderSettings s;
     s.stride = strides[k];
     const auto [seconds, points, peak_mib] = bench::in_child([&]() -> std::array<double, 2> {
-      const Renderer renderer({mesh});
+      // The child's copy-on-write image of the mesh is handed over as a user hands over a loaded model.
+      std::vector<Mesh> models(1);
+      models[0] = std::move(mesh);
+      const Renderer renderer(std::move(models));
       std::size_t n = 0;
       const double t = bench::median_seconds(runs, [&] { n = renderer.render(hyps, K, s).size(); });
       return {t, double(n)};
@@ -82,15 +87,17 @@ void measure(const char* backend, const Mesh& mesh, const std::vector<Hypothesis
   }
 }
 
-void run(const Mesh& mesh, int num_poses, int runs) {
+void run(Mesh mesh, int num_poses, int runs) {
   const auto hyps = poses(num_poses, mesh);
   std::printf("\n%s: %zu triangles, %s, %d poses, 640x480, median of %d runs\n\n", mesh.name.c_str(),
               mesh.triangles.size(), mesh.has_texture() ? "textured" : "vertex colours", num_poses, runs);
   std::printf("| backend    | stride | hypotheses/s | vs cpu   | points/hyp | peak MiB* |\n");
   std::printf("|------------|--------|--------------|----------|------------|-----------|\n");
   double reference[3] = {0, 0, 0};
-  measure<cpu::Renderer>("cpu", mesh, hyps, runs, reference);
-  measure<thrust_omp::Backend::Renderer>("thrust_omp", mesh, hyps, runs, reference);
+  if (only_backend.empty() || only_backend == "cpu")
+    measure<cpu::Renderer>("cpu", mesh, hyps, runs, reference);
+  if (only_backend.empty() || only_backend == "thrust_omp")
+    measure<thrust_omp::Backend::Renderer>("thrust_omp", mesh, hyps, runs, reference);
 }
 
 }  // namespace
@@ -105,6 +112,10 @@ int main(int argc, char** argv) {
       runs = std::stoi(argv[k + 1]);
     else if (a == "--poses")
       num_poses = std::stoi(argv[k + 1]);
+    else if (a == "--stride")
+      strides = {std::stoi(argv[k + 1])};
+    else if (a == "--backend")
+      only_backend = argv[k + 1];
     else if (a == "--model")
       model = argv[k + 1];
     else if (a == "--scale")
@@ -112,8 +123,8 @@ int main(int argc, char** argv) {
   }
   std::printf("bench_render on %s, %d threads\n", bench::cpu_model().c_str(), omp_get_max_threads());
   std::printf(
-      "* peak MiB: growth of the process' peak RSS while building the renderer and rendering (own "
-      "process)\n");
+      "* peak MiB: peak resident memory of a process that holds the loaded mesh, builds the renderer and "
+      "renders the batch (one process per row)\n");
   run(lumpy_sphere(0.06f, 71, 72), num_poses, runs);
   const std::string banana =
       model.empty() ? std::string(PERCH2_SHARED_DATA_DIR) + "/models/ycb_011_banana/textured_simple.obj"

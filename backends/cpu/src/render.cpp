@@ -30,14 +30,13 @@ void render_one(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label,
   if (roi.size() == 0) return;
   scratch.verts_cam.resize(std::size_t(m.num_vertices));
   scratch.spans.resize(std::size_t(m.num_vertices));
-  for (int k = 0; k < m.num_vertices; ++k)
-    pose_vertex(m, T_cam_obj, K, s.stride, s.near_m, k, scratch.verts_cam.data(), scratch.spans.data());
+  pose_vertices(m, T_cam_obj, K, s.stride, s.near_m, 0, m.num_vertices, scratch.verts_cam.data(),
+                scratch.spans.data());
   const PosedVertices posed{scratch.verts_cam.data(), scratch.spans.data()};
   scratch.zbuf.assign(std::size_t(roi.size()), kEmptyPixel);
   DepthTriangle* zbuf = scratch.zbuf.data();
-  for (int tri = 0; tri < m.num_triangles; ++tri)
-    rasterize_triangle(m, posed, tri, K, s.stride, s.near_m, roi, s.cull_back_faces,
-                       [zbuf](int idx, DepthTriangle w) { zbuf[idx] = std::min(zbuf[idx], w); });
+  rasterize_triangles(m, posed, 0, m.num_triangles, K, s.stride, s.near_m, roi, s.cull_back_faces,
+                      [zbuf](int idx, DepthTriangle w) { zbuf[idx] = std::min(zbuf[idx], w); });
   for (int j = 0; j < roi.height; ++j)
     for (int i = 0; i < roi.width; ++i) {
       RenderedSample sample;

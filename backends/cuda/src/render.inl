@@ -91,9 +91,8 @@ struct TransformVertices {
     const BlockRange r = c.range(c.vertices, item);
     const int hyp = c.first + r.segment;
     const std::int64_t base = c.vertices.elements[r.segment];
-    for (std::int64_t k = r.begin; k < r.end; ++k)
-      pose_vertex(h.views[h.model[hyp]], h.T_cam_obj[hyp], K, stride, near_m, int(k), c.verts_cam + base,
-                  c.spans + base);
+    pose_vertices(h.views[h.model[hyp]], h.T_cam_obj[hyp], K, stride, near_m, int(r.begin), int(r.end),
+                  c.verts_cam + base, c.spans + base);
   }
 };
 
@@ -113,13 +112,13 @@ struct Rasterize {
     const std::int64_t base = c.vertices.elements[r.segment];
     const PosedVertices posed{c.verts_cam + base, c.spans + base};
     const MeshView& m = h.views[h.model[hyp]];
-    for (std::int64_t tri = r.begin; tri < r.end; ++tri)
-      rasterize_triangle(m, posed, int(tri), K, stride, near_m, roi, cull, [zbuf](int idx, DepthTriangle w) {
-        auto* word = reinterpret_cast<unsigned long long*>(zbuf + idx);
-        if (w >= *word) return;  // cheap pre-check; the atomic decides
-        cuda::atomic_ref<unsigned long long, cuda::thread_scope_device> ref(*word);
-        ref.fetch_min((unsigned long long)w, cuda::memory_order_relaxed);
-      });
+    rasterize_triangles(m, posed, int(r.begin), int(r.end), K, stride, near_m, roi, cull,
+                        [zbuf](int idx, DepthTriangle w) {
+                          auto* word = reinterpret_cast<unsigned long long*>(zbuf + idx);
+                          if (w >= *word) return;  // cheap pre-check; the atomic decides
+                          cuda::atomic_ref<unsigned long long, cuda::thread_scope_device> ref(*word);
+                          ref.fetch_min((unsigned long long)w, cuda::memory_order_relaxed);
+                        });
   }
 };
 

@@ -136,15 +136,22 @@ struct GridSpan {
 constexpr std::int16_t kBehindNear = -32768;
 constexpr int kMaxGridSize = 32767;
 
-PERCH2_HD inline GridSpan grid_span(Vec2f px, const Intrinsics& K, int stride) {
+/// The stride grid's constants, computed once per pass rather than per vertex (two divisions).
+struct StrideGrid {
+  float inv_stride, width, height;  ///< 1 / stride; grid size in samples
+  PERCH2_HD StrideGrid(const Intrinsics& K, int stride)
+      : inv_stride(1.f / float(stride)),
+        width(float(K.grid_width(stride))),
+        height(float(K.grid_height(stride))) {}
+};
+
+PERCH2_HD inline GridSpan grid_span(Vec2f px, const StrideGrid& g) {
   constexpr float kEps = 1e-3f;  // pixels; bounds are a superset filter, the edge test is exact
-  const float inv = 1.f / float(stride);
-  const float gw = float(K.grid_width(stride)), gh = float(K.grid_height(stride));
-  auto clamp = [](float g, float hi) { return min_f(max_f(g, -1.f), hi); };
-  return {std::int16_t(ceil_int(clamp((px.x - kEps) * inv, gw))),
-          std::int16_t(floor_int(clamp((px.x + kEps) * inv, gw))),
-          std::int16_t(ceil_int(clamp((px.y - kEps) * inv, gh))),
-          std::int16_t(floor_int(clamp((px.y + kEps) * inv, gh)))};
+  auto clamp = [](float x, float hi) { return min_f(max_f(x, -1.f), hi); };
+  return {std::int16_t(ceil_int(clamp((px.x - kEps) * g.inv_stride, g.width))),
+          std::int16_t(floor_int(clamp((px.x + kEps) * g.inv_stride, g.width))),
+          std::int16_t(ceil_int(clamp((px.y - kEps) * g.inv_stride, g.height))),
+          std::int16_t(floor_int(clamp((px.y + kEps) * g.inv_stride, g.height)))};
 }
 
 PERCH2_HD inline int min3(int a, int b, int c) {
@@ -251,36 +258,53 @@ struct PosedVertices {
   const GridSpan* span;
 };
 
-PERCH2_HD inline void pose_vertex(const MeshView& m, const Rigid3f& T_cam_obj, const Intrinsics& K,
-                                  int stride, float near_m, int k, Vec3f* p_cam, GridSpan* span) {
-  const Vec3f p = T_cam_obj * m.vertices[k];
-  p_cam[k] = p;
-  if (!(p.z >= near_m)) {
-    span[k] = GridSpan{kBehindNear, 0, 0, 0};
-    return;
+/// Poses vertices [begin, end) of a model into the camera frame and computes their grid spans. Inputs are
+/// copied to locals first: the float stores to p_cam could alias them otherwise, and the compiler would
+/// reload the pose and intrinsics for every vertex.
+PERCH2_HD inline void pose_vertices(const MeshView& m, const Rigid3f& T_cam_obj, const Intrinsics& K,
+                                    int stride, float near_m, int begin, int end, Vec3f* p_cam,
+                                    GridSpan* span) {
+  const Vec3f* const vertices = m.vertices;
+  const Rigid3f T = T_cam_obj;
+  const Intrinsics K_local = K;
+  const StrideGrid grid(K, stride);
+  for (int k = begin; k < end; ++k) {
+    const Vec3f p = T * vertices[k];
+    p_cam[k] = p;
+    if (!(p.z >= near_m)) {
+      span[k] = GridSpan{kBehindNear, 0, 0, 0};
+      continue;
+    }
+    const float inv_z = 1.f / p.z;  // one division; spans are a superset filter with a 1e-3 px margin
+    span[k] = grid_span({K_local.fx * p.x * inv_z + K_local.cx, K_local.fy * p.y * inv_z + K_local.cy}, grid);
   }
-  const float inv_z = 1.f / p.z;  // one division; spans are a superset filter with a 1e-3 px margin
-  span[k] = grid_span({K.fx * p.x * inv_z + K.cx, K.fy * p.y * inv_z + K.cy}, K, stride);
 }
 
-/// Rasterise triangle `tri` of a posed model into an ROI z-buffer: calls plot(roi_index, packed_word) for
-/// every covered sample. The backend's plot does the z-test (plain min in the reference, a 64-bit atomic
-/// min in the Thrust backend).
+/// Rasterise triangles [begin, end) of a posed model into an ROI z-buffer: calls plot(roi_index,
+/// packed_word) for every covered sample. The backend's plot does the z-test (plain min in the reference, a
+/// 64-bit atomic min in the Thrust backend). Inputs are copied to locals so that plot's stores (an atomic is
+/// a compiler barrier) do not force reloads of the mesh, camera and ROI.
 template <class Plot>
-PERCH2_HD void rasterize_triangle(const MeshView& m, PosedVertices v, int tri, const Intrinsics& K,
-                                  int stride, float near_m, const GridRoi& roi, bool cull_back_faces,
-                                  Plot&& plot) {
-  const std::int32_t* f = m.triangles + 3 * tri;
-  TriangleRaster t;
-  if (!setup_triangle(v.p_cam, f, v.span[f[0]], v.span[f[1]], v.span[f[2]], K, stride, near_m, roi,
-                      cull_back_faces, t))
-    return;
-  for (int j = t.cover.j0; j < t.cover.j0 + t.cover.height; ++j)
-    for (int i = t.cover.i0; i < t.cover.i0 + t.cover.width; ++i) {
-      float depth_m;
-      if (sample_triangle(t, grid_ray(K, stride, i, j), near_m, depth_m))
-        plot((j - roi.j0) * roi.width + (i - roi.i0), pack_depth_triangle(depth_m, std::uint32_t(tri)));
-    }
+PERCH2_HD void rasterize_triangles(const MeshView& m, PosedVertices v, int begin, int end,
+                                   const Intrinsics& K, int stride, float near_m, const GridRoi& roi,
+                                   bool cull_back_faces, Plot&& plot) {
+  const std::int32_t* const triangles = m.triangles;
+  const Intrinsics K_local = K;
+  const GridRoi roi_local = roi;
+  for (int tri = begin; tri < end; ++tri) {
+    const std::int32_t* f = triangles + 3 * tri;
+    TriangleRaster t;
+    if (!setup_triangle(v.p_cam, f, v.span[f[0]], v.span[f[1]], v.span[f[2]], K_local, stride, near_m,
+                        roi_local, cull_back_faces, t))
+      continue;
+    for (int j = t.cover.j0; j < t.cover.j0 + t.cover.height; ++j)
+      for (int i = t.cover.i0; i < t.cover.i0 + t.cover.width; ++i) {
+        float depth_m;
+        if (sample_triangle(t, grid_ray(K_local, stride, i, j), near_m, depth_m))
+          plot((j - roi_local.j0) * roi_local.width + (i - roi_local.i0),
+               pack_depth_triangle(depth_m, std::uint32_t(tri)));
+      }
+  }
 }
 
 /// C-PERCH occluder test for a rendered depth at one full-resolution pixel.
