@@ -175,7 +175,9 @@ TEST_CASE("prefixes of ascii PLY and OBJ files and corrupted header bytes never 
       "# square\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
       "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n";
   const std::size_t first_face_end = obj.find("3/3\n") + 4;
-  for (const auto& [path, text] : {std::pair{ply_path, kPly}, std::pair{obj_path, obj}}) {
+  for (const auto& case_ : {std::pair{ply_path, kPly}, std::pair{obj_path, obj}}) {
+    const std::string& path = case_.first;  // not structured bindings: doctest's macros capture them
+    const std::string& text = case_.second;
     for (std::size_t n = 0; n <= text.size(); ++n) {
       CAPTURE(path);
       CAPTURE(n);

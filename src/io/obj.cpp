@@ -170,7 +170,9 @@ Mesh load_obj(const std::string& path, const MeshLoadOptions& options) {
   if (attrib.vertices.size() != 3 * summary.vertices)
     throw FileError(path, "tinyobjloader read " + std::to_string(attrib.vertices.size() / 3) +
                               " vertices, the file has " + std::to_string(summary.vertices));
-  for (const auto& [name, line] : summary.usemtls) {
+  for (const auto& usemtl : summary.usemtls) {
+    const std::string& name = usemtl.first;  // not a structured binding: C++17 lambdas cannot capture those
+    const std::size_t line = usemtl.second;
     const bool found = std::any_of(materials.begin(), materials.end(),
                                    [&](const tinyobj::material_t& m) { return m.name == name; });
     if (!found)
