@@ -173,8 +173,9 @@ int main(int argc, char** argv) {
     s.name = "6dof: 2400 x 300 queries -> 1 segment of 5000";
     append(s.targets, transformed(sample(rng, model, 5000), T_cam_obj, rng, 0.001f));
     for (int h = 0; h < 2400; ++h) {
-      const Rigid3f dT = rotation({u(rng), u(rng), u(rng)}, 0.26f * u(rng),
-                                  {0.03f * u(rng), 0.03f * u(rng), 0.03f * u(rng)});
+      const Vec3f axis{u(rng), u(rng), u(rng)};  // drawn in sequence: argument order is unspecified
+      const float angle = 0.26f * u(rng);
+      const Rigid3f dT = rotation(axis, angle, {0.03f * u(rng), 0.03f * u(rng), 0.03f * u(rng)});
       Rigid3f T = T_cam_obj;
       std::vector<Vec3f> pts = transformed(sample(rng, model, 300), T, rng, 0.f);
       for (Vec3f& p : pts) p = dT * (p - T_cam_obj.t) + T_cam_obj.t;

@@ -115,10 +115,10 @@ Problem make_problem(const Mesh& mesh, int num_sources, std::mt19937& rng) {
   std::vector<Hypothesis> hyps;
   for (int k = 0; k < num_sources; ++k) {
     Pose D = Pose::Identity();
-    D.linear() = Eigen::AngleAxisf(10 * kDeg * u(rng), Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized())
+    D.linear() = Eigen::AngleAxisf(10 * kDeg * u(rng), Eigen::Vector3f{g(rng), g(rng), g(rng)}.normalized())
                      .toRotationMatrix();
     D.translation() =
-        c - D.linear() * c + 0.02f * u(rng) * Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+        c - D.linear() * c + 0.02f * u(rng) * Eigen::Vector3f{g(rng), g(rng), g(rng)}.normalized();
     hyps.push_back(Hypothesis{0, D * T_true});
     p.ideal.push_back(D.inverse());
   }

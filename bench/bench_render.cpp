@@ -51,10 +51,10 @@ std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
   std::vector<Hypothesis> out;
   for (int k = 0; k < n; ++k) {
     Pose T = Pose::Identity();
-    T.linear() = Eigen::Quaternionf(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+    T.linear() = Eigen::Quaternionf{g(rng), g(rng), g(rng), g(rng)}.normalized().toRotationMatrix();
     const float depth = z(rng);
     T.translation() =
-        Eigen::Vector3f(0.25f * depth * u(rng), 0.2f * depth * u(rng), depth) - T.linear() * centre;
+        Eigen::Vector3f{0.25f * depth * u(rng), 0.2f * depth * u(rng), depth} - T.linear() * centre;
     out.push_back({0, T});
   }
   return out;

@@ -67,10 +67,10 @@ int main(int argc, char** argv) try {
   std::uniform_real_distribution<float> u(-1.f, 1.f);
   std::vector<perch2::Hypothesis> hyps;
   for (int k = 0; k < 8; ++k) {
-    const Eigen::Vector3f axis = Eigen::Vector3f(u(rng), u(rng), u(rng)).normalized();
+    const Eigen::Vector3f axis = Eigen::Vector3f{u(rng), u(rng), u(rng)}.normalized();
     perch2::Pose dT = perch2::Pose::Identity();
     dT.linear() = Eigen::AngleAxisf(0.17f * u(rng), axis).toRotationMatrix();
-    dT.translation() = 0.02f * Eigen::Vector3f(u(rng), u(rng), u(rng)) / std::sqrt(3.f);
+    dT.translation() = 0.02f * Eigen::Vector3f{u(rng), u(rng), u(rng)} / std::sqrt(3.f);
     hyps.push_back({0, T_true * dT});
   }
   const perch2::CloudBatch clouds = renderer.render(hyps, K, perch2::RenderSettings{});

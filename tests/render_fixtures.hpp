@@ -99,10 +99,10 @@ inline Pose pose_at(float x, float y, float z, const Eigen::Vector3f& axis = Eig
 inline Pose random_pose(std::mt19937& rng, float z_min, float z_max, float xy = 0.15f) {
   std::uniform_real_distribution<float> u(-1.f, 1.f), z(z_min, z_max);
   std::normal_distribution<float> g(0.f, 1.f);
-  const Eigen::Quaternionf q = Eigen::Quaternionf(g(rng), g(rng), g(rng), g(rng)).normalized();
+  const Eigen::Quaternionf q = Eigen::Quaternionf{g(rng), g(rng), g(rng), g(rng)}.normalized();
   Pose T = Pose::Identity();
   T.linear() = q.toRotationMatrix();
-  T.translation() = Eigen::Vector3f(xy * u(rng), xy * u(rng), z(rng));
+  T.translation() = Eigen::Vector3f{xy * u(rng), xy * u(rng), z(rng)};
   return T;
 }
 

@@ -303,7 +303,7 @@ TEST_CASE("both backends render identical batches for random meshes and poses") 
   Mesh textured = test::make_box(0.1f, 0.2f, 0.05f);
   textured.corner_uvs.resize(3 * textured.triangles.size());
   std::uniform_real_distribution<float> uv(-0.5f, 1.5f);
-  for (auto& t : textured.corner_uvs) t = Eigen::Vector2f(uv(rng), uv(rng));
+  for (auto& t : textured.corner_uvs) t = Eigen::Vector2f{uv(rng), uv(rng)};
   textured.texture = test::make_ramp_texture(32);
   models.push_back(textured);
 

@@ -371,6 +371,11 @@ RegistrationResult Registration::gicp(const CloudBatch& sources,
   validate(settings);
   validate_registration_sources(sources, source_segment, impl_->segments.size(),
                                 settings.source_covariance == SourceCovariance::FromPixelNeighbourhood);
+  if (settings.icp_warmup_iterations > 0)
+    return gicp_after_icp_warmup(
+        sources, settings,
+        [&](const CloudBatch& c, const IcpSettings& s) { return impl_->run(c, source_segment, s, false); },
+        [&](const CloudBatch& c, const GicpSettings& s) { return impl_->run(c, source_segment, s, true); });
   return impl_->run(sources, source_segment, settings, true);
 }
 

@@ -669,8 +669,17 @@ RegistrationResult Registration<System>::gicp(const CloudBatch& sources,
   validate(settings);
   validate_registration_sources(sources, source_segment, impl_->num_segments(),
                                 settings.source_covariance == SourceCovariance::FromPixelNeighbourhood);
-  return impl_->run(sources, source_segment,
-                    reg_detail::make_params(settings, true, settings.covariance_epsilon), &settings);
+  auto run_gicp = [&](const CloudBatch& c, const GicpSettings& s) {
+    return impl_->run(c, source_segment, reg_detail::make_params(s, true, s.covariance_epsilon), &s);
+  };
+  if (settings.icp_warmup_iterations > 0)
+    return gicp_after_icp_warmup(
+        sources, settings,
+        [&](const CloudBatch& c, const IcpSettings& s) {
+          return impl_->run(c, source_segment, reg_detail::make_params(s, false, 1.f), nullptr);
+        },
+        run_gicp);
+  return run_gicp(sources, settings);
 }
 
 }  // namespace perch2::thrust_backend
