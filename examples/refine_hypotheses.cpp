@@ -58,7 +58,9 @@ int main(int argc, char** argv) try {
   for (std::size_t i = 0; i < truth.size(); ++i) frame.depth_m.data[std::size_t(truth.pixel[i])] = truth.z[i];
 
   // Targets, built once per frame: the observed points (every 2nd pixel) as one segment.
-  const perch2::CloudBatch observed = perch2::observed_cloud(frame, 2);
+  perch2::ObservedCloudSettings every_2nd;
+  every_2nd.stride = 2;
+  const perch2::CloudBatch observed = perch2::observed_cloud(frame, every_2nd);
   const Backend::Registration registration(observed);
   const Backend::KnnIndex index(observed);
 

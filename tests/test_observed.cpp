@@ -12,6 +12,12 @@ using perch2::test::vga_camera;
 
 namespace {
 
+ObservedCloudSettings every(int stride) {
+  ObservedCloudSettings s;
+  s.stride = stride;
+  return s;
+}
+
 /// A frame seeing a fronto-parallel plane at depth_m with a hole (no reading) in the top-left 10x10 pixels.
 RgbdFrame plane_frame(float depth_m) {
   RgbdFrame f;
@@ -56,7 +62,7 @@ TEST_CASE("observed_cloud back-projects every pixel with a reading through the c
 
 TEST_CASE("observed_cloud at stride s keeps exactly the pixels at multiples of s") {
   const RgbdFrame f = plane_frame(1.2f);
-  const CloudBatch full = observed_cloud(f, 1), s4 = observed_cloud(f, 4);
+  const CloudBatch full = observed_cloud(f, every(1)), s4 = observed_cloud(f, every(4));
   std::size_t expected = 0;
   for (std::size_t i = 0; i < full.size(); ++i) {
     const int u = full.pixel[i] % 640, v = full.pixel[i] / 640;
@@ -75,9 +81,24 @@ TEST_CASE("observed_cloud at stride s keeps exactly the pixels at multiples of s
 TEST_CASE("observed_cloud without a colour image gives rgb 0") {
   RgbdFrame f = plane_frame(0.5f);
   f.rgb = ColorImage{};
-  const CloudBatch c = observed_cloud(f, 8);
+  const CloudBatch c = observed_cloud(f, every(8));
   REQUIRE(c.size() > 0);
   for (auto rgb : c.rgb) REQUIRE(rgb == 0u);
+}
+
+TEST_CASE("observed_cloud keeps only readings inside the depth range") {
+  RgbdFrame f = plane_frame(0.8f);
+  for (int v = 0; v < 480; ++v)
+    for (int u = 320; u < 640; ++u) f.depth_m(u, v) = 2.5f;  // right half: the wall behind the table
+  ObservedCloudSettings s = every(4);
+  s.max_depth_m = 2.f;
+  const CloudBatch near = observed_cloud(f, s);
+  CHECK(near.size() == std::size_t(80 * 120 - 9));  // left half of the grid, minus the hole
+  for (std::size_t i = 0; i < near.size(); ++i) REQUIRE(near.z[i] == 0.8f);
+  s.min_depth_m = 1.f, s.max_depth_m = 3.f;
+  const CloudBatch far = observed_cloud(f, s);
+  CHECK(far.size() == std::size_t(80 * 120));
+  for (std::size_t i = 0; i < far.size(); ++i) REQUIRE(far.z[i] == 2.5f);
 }
 
 TEST_CASE("observed_segments splits the points by label and keeps empty labels as empty clouds") {
@@ -85,7 +106,7 @@ TEST_CASE("observed_segments splits the points by label and keeps empty labels a
   LabelImage labels(640, 480, 0);
   for (int v = 0; v < 480; ++v)
     for (int u = 0; u < 640; ++u) labels(u, v) = u < 320 ? 3 : (v < 240 ? 5 : 0);
-  const CloudBatch c = observed_segments(f, labels, {5, 9, 3}, 2);
+  const CloudBatch c = observed_segments(f, labels, {5, 9, 3}, every(2));
   c.validate();
   REQUIRE(c.num_clouds() == 3);
   CHECK(c.cloud_size(0) == std::size_t(160 * 120));       // u >= 320, v < 240
@@ -115,7 +136,7 @@ TEST_CASE_TEMPLATE("a rendered depth image turns back into the renderer's points
   f.depth_m = depth_of(renderer.render(hyp, K, s), K);
   for (int stride : {1, 3, 4}) {
     s.stride = stride;
-    const CloudBatch rendered = renderer.render(hyp, K, s), observed = observed_cloud(f, stride);
+    const CloudBatch rendered = renderer.render(hyp, K, s), observed = observed_cloud(f, every(stride));
     CAPTURE(stride);
     REQUIRE(rendered.size() > 50);
     REQUIRE(observed.size() == rendered.size());
@@ -130,7 +151,12 @@ TEST_CASE_TEMPLATE("a rendered depth image turns back into the renderer's points
 
 TEST_CASE("observed clouds reject bad frames, labels and strides with a clear message") {
   RgbdFrame f = plane_frame(0.6f);
-  CHECK_THROWS_WITH_AS(observed_cloud(f, 0), doctest::Contains("stride must be >= 1"), InvalidInput);
+  CHECK_THROWS_WITH_AS(observed_cloud(f, every(0)), doctest::Contains("stride must be >= 1"), InvalidInput);
+  ObservedCloudSettings range;
+  range.min_depth_m = 1.f, range.max_depth_m = 0.5f;
+  CHECK_THROWS_WITH_AS(observed_cloud(f, range), doctest::Contains("depth range"), InvalidInput);
+  range.min_depth_m = std::nanf(""), range.max_depth_m = 2.f;
+  CHECK_THROWS_WITH_AS(observed_cloud(f, range), doctest::Contains("depth range"), InvalidInput);
   LabelImage small(320, 240, 1);
   CHECK_THROWS_WITH_AS(observed_segments(f, small, {1}), doctest::Contains("observed label image"),
                        InvalidInput);

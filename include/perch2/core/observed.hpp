@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -12,10 +13,26 @@
 
 namespace perch2 {
 
+/// Which pixels of a frame become observed points.
+struct ObservedCloudSettings {
+  int stride = 1;           ///< every stride-th pixel in u and v (u, v multiples of stride), >= 1
+  float min_depth_m = 0.f;  ///< readings nearer than this are dropped, metres
+  /// Readings farther than this are dropped (e.g. the room behind the table), metres.
+  float max_depth_m = std::numeric_limits<float>::infinity();
+};
+
 namespace observed_detail {
 
-inline void check_stride(int stride, const std::string& who) {
-  if (stride < 1) throw InvalidInput(who, "stride must be >= 1, got " + std::to_string(stride));
+inline void check(const ObservedCloudSettings& s, const std::string& who) {
+  if (s.stride < 1) throw InvalidInput(who, "stride must be >= 1, got " + std::to_string(s.stride));
+  if (!(s.min_depth_m >= 0.f) || !(s.max_depth_m > s.min_depth_m))
+    throw InvalidInput(who, "depth range must satisfy 0 <= min_depth_m < max_depth_m, got [" +
+                                std::to_string(s.min_depth_m) + ", " + std::to_string(s.max_depth_m) + "]");
+}
+
+/// A reading (> 0, 0 = none) inside the requested depth range.
+inline bool keep(float d, const ObservedCloudSettings& s) {
+  return d > 0.f && d >= s.min_depth_m && d <= s.max_depth_m;
 }
 
 /// Appends the pixel (u, v) of the frame with depth d to the batch, as cloud `c`. The point is d times the
@@ -31,16 +48,17 @@ inline void append_pixel(const RgbdFrame& f, int u, int v, float d, std::int32_t
 
 }  // namespace observed_detail
 
-/// The frame's points as one cloud: every pixel (u, v) with u, v multiples of `stride` and a depth reading
-/// (> 0), in raster order, camera frame, metres; rgb from the colour image (0 if the frame has none).
-/// Throws InvalidInput on a malformed frame (sizes, NaN or negative depth) or stride < 1.
-inline CloudBatch observed_cloud(const RgbdFrame& frame, int stride = 1) {
+/// The frame's points as one cloud: every pixel on the stride grid with a reading in the depth range, in
+/// raster order, camera frame, metres; rgb from the colour image (0 if the frame has none).
+/// Throws InvalidInput on a malformed frame (sizes, NaN or negative depth) or bad settings.
+inline CloudBatch observed_cloud(const RgbdFrame& frame, const ObservedCloudSettings& s = {}) {
   frame.validate("observed frame");
-  observed_detail::check_stride(stride, "observed_cloud");
+  observed_detail::check(s, "observed_cloud");
   CloudBatch out;
-  for (int v = 0; v < frame.camera.height; v += stride)
-    for (int u = 0; u < frame.camera.width; u += stride)
-      if (const float d = frame.depth_m(u, v); d > 0.f) observed_detail::append_pixel(frame, u, v, d, 0, out);
+  for (int v = 0; v < frame.camera.height; v += s.stride)
+    for (int u = 0; u < frame.camera.width; u += s.stride)
+      if (const float d = frame.depth_m(u, v); observed_detail::keep(d, s))
+        observed_detail::append_pixel(frame, u, v, d, 0, out);
   out.offsets = {0, std::int64_t(out.size())};
   return out;
 }
@@ -48,23 +66,26 @@ inline CloudBatch observed_cloud(const RgbdFrame& frame, int stride = 1) {
 /// One cloud per entry of `segment_labels`: cloud s holds the frame's points (as in observed_cloud) whose
 /// label is segment_labels[s]. A label with no points gives an empty cloud. A hypothesis of the object
 /// labelled l then searches segment s with segment_labels[s] == l (the query_segment of kNN/registration).
-/// Throws InvalidInput on a malformed frame, a label image of the wrong size, a repeated label or stride < 1.
+/// Throws InvalidInput on a malformed frame, a label image of the wrong size, a repeated label or bad
+/// settings.
 inline CloudBatch observed_segments(const RgbdFrame& frame, const LabelImage& labels,
-                                    const std::vector<std::int32_t>& segment_labels, int stride = 1) {
+                                    const std::vector<std::int32_t>& segment_labels,
+                                    const ObservedCloudSettings& s = {}) {
   frame.validate("observed frame");
   check_size(labels, frame.camera.width, frame.camera.height, "observed label image");
-  observed_detail::check_stride(stride, "observed_segments");
-  for (std::size_t s = 0; s < segment_labels.size(); ++s)
-    for (std::size_t t = 0; t < s; ++t)
-      if (segment_labels[s] == segment_labels[t])
-        throw InvalidInput("observed_segments", "label " + std::to_string(segment_labels[s]) +
+  observed_detail::check(s, "observed_segments");
+  for (std::size_t a = 0; a < segment_labels.size(); ++a)
+    for (std::size_t b = 0; b < a; ++b)
+      if (segment_labels[a] == segment_labels[b])
+        throw InvalidInput("observed_segments", "label " + std::to_string(segment_labels[a]) +
                                                     " is listed twice in segment_labels");
   CloudBatch out;
-  for (std::size_t s = 0; s < segment_labels.size(); ++s) {
-    for (int v = 0; v < frame.camera.height; v += stride)
-      for (int u = 0; u < frame.camera.width; u += stride)
-        if (const float d = frame.depth_m(u, v); d > 0.f && labels(u, v) == segment_labels[s])
-          observed_detail::append_pixel(frame, u, v, d, std::int32_t(s), out);
+  for (std::size_t seg = 0; seg < segment_labels.size(); ++seg) {
+    for (int v = 0; v < frame.camera.height; v += s.stride)
+      for (int u = 0; u < frame.camera.width; u += s.stride)
+        if (const float d = frame.depth_m(u, v);
+            observed_detail::keep(d, s) && labels(u, v) == segment_labels[seg])
+          observed_detail::append_pixel(frame, u, v, d, std::int32_t(seg), out);
     out.offsets.push_back(std::int64_t(out.size()));
   }
   return out;
