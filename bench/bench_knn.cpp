@@ -6,6 +6,9 @@
 //         against one ~20,000-point observed scene (table plane + the object).
 // Scanning methods (kNN I, kNN II) are timed on the first 240 query clouds (10 %): their cost is linear in
 // the number of queries, so queries/s is comparable; the full set would take minutes per run.
+// Optional peer (built in when CMake finds libnanoflann-dev): nanoflann's KDTreeSingleIndexAdaptor, one tree
+// per target segment (leaf size 10 like FLANN's), OpenMP over query clouds like the FLANN reference, on the
+// same queries and targets as the FLANN row.
 //
 // Usage: bench_knn [data_dir=<repo>/../shared/data] [runs=5] [grid: time only FLANN, auto and grid]
 #include <omp.h>
@@ -14,10 +17,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <limits>
+#include <memory>
 #include <random>
 #include <sstream>
 #include <string>
@@ -26,6 +32,10 @@
 #include "perch2/cpu/knn.hpp"
 #include "perch2/cuda/knn.hpp"
 #include "perch2/knn/knn.hpp"
+
+#ifdef PERCH2_HAVE_NANOFLANN
+#include <nanoflann.hpp>
+#endif
 
 using namespace perch2;
 
@@ -143,6 +153,80 @@ Timing time_median(int runs, const std::function<void()>& f) {
   return {median(wall), median(cpu)};
 }
 
+#ifdef PERCH2_HAVE_NANOFLANN
+/// nanoflann's dataset adaptor: one target segment as row-major x y z (the layout FLANN is given too).
+struct NanoflannCloud {
+  std::vector<float> rows;
+  std::size_t kdtree_get_point_count() const { return rows.size() / 3; }
+  float kdtree_get_pt(std::uint32_t i, std::size_t d) const { return rows[3 * std::size_t(i) + d]; }
+  template <class BBox>
+  bool kdtree_get_bbox(BBox&) const {
+    return false;  // let nanoflann compute the bounding box
+  }
+};
+using NanoflannTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, NanoflannCloud>,
+                                                          NanoflannCloud, 3>;
+
+/// The peer index: one nanoflann kd-tree per target segment, searched like cpu::KnnIndex searches FLANN's.
+class NanoflannIndex {
+ public:
+  explicit NanoflannIndex(const CloudBatch& targets, std::size_t leaf_max_size = 10)
+      : offsets_(targets.offsets), clouds_(targets.num_clouds()), trees_(targets.num_clouds()) {
+#pragma omp parallel for schedule(dynamic, 1)
+    for (std::int64_t s = 0; s < std::int64_t(clouds_.size()); ++s) {
+      const std::int64_t b = offsets_[std::size_t(s)], e = offsets_[std::size_t(s) + 1];
+      if (e == b) continue;
+      auto cloud = std::make_unique<NanoflannCloud>();
+      cloud->rows.resize(std::size_t(e - b) * 3);
+      for (std::int64_t i = b; i < e; ++i) {
+        float* r = &cloud->rows[std::size_t(i - b) * 3];
+        r[0] = targets.x[std::size_t(i)], r[1] = targets.y[std::size_t(i)], r[2] = targets.z[std::size_t(i)];
+      }
+      trees_[std::size_t(s)] = std::make_unique<NanoflannTree>(  // builds the tree
+          3, *cloud, nanoflann::KDTreeSingleIndexAdaptorParams(leaf_max_size));
+      clouds_[std::size_t(s)] = std::move(cloud);
+    }
+  }
+
+  /// k nearest neighbours (global target indices, squared distances), OpenMP over query clouds.
+  KnnResult knn(const CloudBatch& queries, const std::vector<std::int32_t>& query_segment, int k) const {
+    KnnResult out;
+    out.k = k;
+    out.index.assign(queries.size() * std::size_t(k), -1);
+    out.sq_distance_m2.assign(queries.size() * std::size_t(k), std::numeric_limits<float>::infinity());
+#pragma omp parallel
+    {
+      std::vector<std::uint32_t> idx(static_cast<std::size_t>(k));
+      std::vector<float> d2(static_cast<std::size_t>(k));
+#pragma omp for schedule(dynamic, 4)
+      for (std::int64_t c = 0; c < std::int64_t(queries.num_clouds()); ++c) {
+        const std::int64_t qb = queries.offsets[std::size_t(c)], qe = queries.offsets[std::size_t(c) + 1];
+        const std::size_t s = std::size_t(query_segment[std::size_t(c)]);
+        const NanoflannTree* tree = trees_[s].get();
+        if (qe == qb || !tree) continue;
+        const std::int64_t seg_begin = offsets_[s];
+        for (std::int64_t q = qb; q < qe; ++q) {
+          const float p[3] = {queries.x[std::size_t(q)], queries.y[std::size_t(q)],
+                              queries.z[std::size_t(q)]};
+          const std::size_t n = tree->knnSearch(p, std::size_t(k), idx.data(), d2.data());
+          for (std::size_t j = 0; j < n; ++j) {
+            const std::size_t o = std::size_t(q) * std::size_t(k) + j;
+            out.index[o] = std::int32_t(seg_begin + std::int64_t(idx[j]));
+            out.sq_distance_m2[o] = d2[j];
+          }
+        }
+      }
+    }
+    return out;
+  }
+
+ private:
+  std::vector<std::int64_t> offsets_;
+  std::vector<std::unique_ptr<NanoflannCloud>> clouds_;  // per segment, kept alive for the trees
+  std::vector<std::unique_ptr<NanoflannTree>> trees_;    // null for empty segments
+};
+#endif
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -164,6 +248,12 @@ int main(int argc, char** argv) {
   std::printf("model: %s, %zu vertices; OpenMP threads: %d; runs: %d (medians)\n",
               real ? "LINEMOD obj_06 (cat)" : "synthetic box (no shared data)", model.size(),
               omp_get_max_threads(), runs);
+#ifdef PERCH2_HAVE_NANOFLANN
+  std::printf("peer: nanoflann, NANOFLANN_VERSION 0x%x (KDTreeSingleIndexAdaptor, leaf size 10)\n",
+              unsigned(NANOFLANN_VERSION));
+#else
+  std::printf("peer: nanoflann not built in (libnanoflann-dev not found at configure time)\n");
+#endif
 
   std::vector<Scene> scenes;
   std::uniform_real_distribution<float> u(-1.f, 1.f);
@@ -223,8 +313,18 @@ int main(int argc, char** argv) {
         time_median(runs, [&] {
           thr = std::make_unique<thrust_backend::KnnIndex<thrust_backend::OmpSystem>>(s.targets);
         }).wall_s;
+#ifdef PERCH2_HAVE_NANOFLANN
+    std::unique_ptr<NanoflannIndex> nano;
+    const double t_nano_build =
+        time_median(runs, [&] { nano = std::make_unique<NanoflannIndex>(s.targets); }).wall_s;
+    std::printf(
+        "index build: FLANN kd-tree %.2f ms, nanoflann kd-tree %.2f ms, "
+        "thrust_omp (upload + grid) %.2f ms\n\n",
+        1e3 * t_flann_build, 1e3 * t_nano_build, 1e3 * t_grid_build);
+#else
     std::printf("index build: FLANN kd-tree %.2f ms, thrust_omp (upload + grid) %.2f ms\n\n",
                 1e3 * t_flann_build, 1e3 * t_grid_build);
+#endif
     std::printf(
         "| k | backend | method | queries timed | wall s | queries/s | vs FLANN | CPU us/query | "
         "max abs(d2 - FLANN d2) |\n");
@@ -240,6 +340,19 @@ int main(int argc, char** argv) {
       const double flann_qps = double(s.queries.size()) / t_flann.wall_s;
       std::printf("| %d | cpu | FLANN kd-tree | %zu | %.4f | %.3g | 1.00 | %.3f | 0 |\n", k, s.queries.size(),
                   t_flann.wall_s, flann_qps, 1e6 * t_flann.cpu_s / double(s.queries.size()));
+#ifdef PERCH2_HAVE_NANOFLANN
+      {
+        KnnResult r;
+        const Timing t = time_median(runs, [&] { r = nano->knn(s.queries, s.segment, k); });
+        float max_err = 0;
+        for (std::size_t i = 0; i < r.sq_distance_m2.size(); ++i)
+          max_err = std::max(max_err, std::abs(r.sq_distance_m2[i] - ref.sq_distance_m2[i]));
+        const double qps = double(s.queries.size()) / t.wall_s;
+        std::printf("| %d | cpu | nanoflann kd-tree | %zu | %.4f | %.3g | %.2f | %.3f | %g |\n", k,
+                    s.queries.size(), t.wall_s, qps, qps / flann_qps,
+                    1e6 * t.cpu_s / double(s.queries.size()), double(max_err));
+      }
+#endif
       for (KnnMethod m : {KnnMethod::Auto, KnnMethod::Grid, KnnMethod::PerQuery, KnnMethod::BruteForce}) {
         ks.method = m;
         const bool scan = m == KnnMethod::PerQuery || m == KnnMethod::BruteForce;
