@@ -469,8 +469,11 @@ TEST_CASE_TEMPLATE("segments are isolated; empty clouds and segments give a defi
     const RegistrationResult r =
         gicp ? reg.gicp(sources, seg, gicp_settings()) : reg.icp(sources, seg, icp_settings());
     REQUIRE(r.size() == 4);
+    // Searching the wrong segment would leave ~30 mm; ICP may lock up to ~3 mm off on this lattice-sampled
+    // shape (see the noise-free test), GICP recovers exactly.
+    const float tolerance_m = gicp ? 1e-3f : 4e-3f;
     const PoseError e0 = correction_error(r.T_corr[0], D, sources, 0);
-    CHECK(e0.displacement_m < 1e-3f);
+    CHECK(e0.displacement_m < tolerance_m);
     for (const std::size_t h : {std::size_t(1), std::size_t(2)}) {  // nothing to align: identity, flagged
       CAPTURE(h);
       CHECK(r.T_corr[h].isApprox(Pose::Identity()));
@@ -479,7 +482,7 @@ TEST_CASE_TEMPLATE("segments are isolated; empty clouds and segments give a defi
       CHECK(std::isinf(r.final_error[h]));
     }
     const PoseError e3 = correction_error(shift.inverse() * r.T_corr[3], D, sources, 3);
-    CHECK(e3.displacement_m < 1e-3f);  // aligned to the decoy, i.e. its own segment
+    CHECK(e3.displacement_m < tolerance_m);  // aligned to the decoy, i.e. its own segment
   }
 }
 
