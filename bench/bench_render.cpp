@@ -15,32 +15,11 @@
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
 #include "perch2/io/io.hpp"
+#include "render_fixtures.hpp"
 
 using namespace perch2;
 
 namespace {
-
-Mesh lumpy_sphere(float radius_m, int rings, int segments) {
-  Mesh m;
-  m.name = "lumpy sphere";
-  const float pi = 3.14159265f;
-  for (int i = 0; i <= rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      const float th = pi * i / rings, ph = 2 * pi * j / segments;
-      const float r = radius_m * (1.f + 0.1f * std::sin(5 * ph) * std::sin(3 * th));
-      m.vertices.emplace_back(r * std::sin(th) * std::cos(ph), r * std::sin(th) * std::sin(ph),
-                              r * std::cos(th));
-      m.vertex_colors.push_back(
-          {std::uint8_t(128 + 100 * std::sin(th)), std::uint8_t(128 + 100 * std::cos(ph)), 90});
-    }
-  auto at = [&](int i, int j) { return i * segments + (j % segments); };
-  for (int i = 0; i < rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      m.triangles.emplace_back(at(i, j), at(i + 1, j), at(i + 1, j + 1));
-      m.triangles.emplace_back(at(i, j), at(i + 1, j + 1), at(i, j + 1));
-    }
-  return m;
-}
 
 /// Tabletop-like poses: 0.5-1.0 m away, anywhere in the central part of the view, any rotation.
 std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
@@ -125,7 +104,7 @@ int main(int argc, char** argv) {
   std::printf(
       "* peak MiB: peak resident memory of a process that holds the loaded mesh, builds the renderer and "
       "renders the batch (one process per row)\n");
-  run(lumpy_sphere(0.06f, 71, 72), num_poses, runs);
+  run(test::lumpy_sphere(0.06f, 71, 72), num_poses, runs);
   const std::string banana =
       model.empty() ? std::string(PERCH2_SHARED_DATA_DIR) + "/models/ycb_011_banana/textured_simple.obj"
                     : model;

@@ -1,10 +1,18 @@
 // Device-callable rasterisation kernels shared by every backend (the algorithm text lives once).
 //
 // Homogeneous rasterisation (Olano & Greer 1997): each triangle (a, b, c) in the camera frame gets three
-// edge planes through the camera centre, n_a = b x c, n_b = c x a, n_c = a x b. A pixel ray d = (x, y, 1)
-// hits the triangle iff all E_k = n_k . d have the sign of det = a . (b x c); then the hit depth is
-// z = det / sum(E_k) and the perspective-correct barycentrics are E_k / sum(E_k). No screen-space clipping
-// is needed: triangles crossing the near plane are handled per sample (z >= near).
+// edge planes through the camera centre; a pixel ray d = (x, y, 1) hits the triangle iff it lies on the
+// inner side of all three. No screen-space clipping is needed: triangles crossing the near plane are
+// handled per sample (z >= near).
+//
+// Conditioning. Scanned models have millimetre triangles a metre away, so every quantity is formed from
+// vertex-relative (edge) vectors, never from triple products of the ~1 m position vectors, whose
+// cancellation cost up to 3% of the depth in float:
+// - edge plane of edge (p, q): p x (q - p) (= p x q), with (p, q) ordered canonically by coordinates, so the
+//   two triangles sharing an edge compute the same bits with opposite signs (watertight: a sample on a
+//   shared edge is covered by at least one of them);
+// - plane normal N = (b - a) x (c - a); depth along d: z = (N . a) / (N . d);
+// - barycentrics of the hit p = z d from q = p - a: w_b = (q x e2) . N / |N|^2, w_c = (e1 x q) . N / |N|^2.
 #pragma once
 
 #include <cmath>
@@ -118,12 +126,30 @@ PERCH2_HD inline GridRoi model_roi(const MeshView& m, const Rigid3f& T_cam_obj, 
   return grid_cover(b, stride, full);
 }
 
-/// Per-triangle set-up: sign-normalised edge planes, |det| and the grid samples to test.
+/// Per-triangle set-up: sign-normalised edge planes and plane (normal, offset) with the ray hitting the
+/// front side where n[k] . d >= 0 for all k, depth = offset / (normal . d); and the grid samples to test.
 struct TriangleRaster {
   Vec3f n[3];
-  float det = 0;
+  Vec3f normal;
+  float offset = 0;
   GridRoi cover;
 };
+
+/// Lexicographic order of points: the canonical direction of an edge.
+PERCH2_HD inline bool lex_less(Vec3f p, Vec3f q) {
+  return p.x < q.x || (p.x == q.x && (p.y < q.y || (p.y == q.y && p.z < q.z)));
+}
+
+/// Normal of the plane through the camera centre and edge (p, q), pointing to the left of p -> q seen from
+/// the camera (as p x q). Computed from the lexicographically smaller endpoint and the edge vector, so the
+/// reversed edge gives exactly the negated bits.
+PERCH2_HD inline Vec3f edge_plane(Vec3f p, Vec3f q) {
+  if (lex_less(q, p)) {
+    const Vec3f n = cross(q, p - q);
+    return {-n.x, -n.y, -n.z};
+  }
+  return cross(p, q - p);
+}
 
 /// The grid samples a projected vertex bounds from each side: i_lo = ceil((u - eps) / s), i_hi =
 /// floor((u + eps) / s) (likewise j), clamped to [-1, grid size]. A triangle's samples lie within the min of
@@ -193,22 +219,22 @@ PERCH2_HD inline bool setup_triangle(const Vec3f* p_cam, const std::int32_t* f, 
     if (t.cover.size() == 0) return false;
   }
   const Vec3f a = p_cam[f[0]], b = p_cam[f[1]], c = p_cam[f[2]];
-  const Vec3f na = cross(b, c);
-  const float det = dot(a, na);
-  // det < 0: counter-clockwise winding faces the camera (outward normal points at the origin).
-  if (det == 0.f || !(det == det) || (cull_back_faces && det > 0.f)) return false;
-  const float s = det < 0.f ? -1.f : 1.f;
-  t.n[0] = s * na, t.n[1] = s * cross(c, a), t.n[2] = s * cross(a, b), t.det = s * det;
+  const Vec3f normal = cross(b - a, c - a);
+  const float offset = dot(normal, a);  // = a . (b x c), without the cancellation
+  // offset < 0: counter-clockwise winding faces the camera (outward normal points at the origin).
+  if (offset == 0.f || !(offset == offset) || (cull_back_faces && offset > 0.f)) return false;
+  const float s = offset < 0.f ? -1.f : 1.f;
+  t.n[0] = s * edge_plane(b, c), t.n[1] = s * edge_plane(c, a), t.n[2] = s * edge_plane(a, b);
+  t.normal = s * normal, t.offset = s * offset;
   return true;
 }
 
 /// Edge-function test of one ray: on a hit, the depth (z, metres) of the triangle along it.
 PERCH2_HD inline bool sample_triangle(const TriangleRaster& t, Vec3f ray, float near_m, float& depth_m) {
-  const float e0 = dot(t.n[0], ray), e1 = dot(t.n[1], ray), e2 = dot(t.n[2], ray);
-  if (e0 < 0.f || e1 < 0.f || e2 < 0.f) return false;
-  const float sum = e0 + e1 + e2;
-  if (!(sum > 0.f)) return false;
-  depth_m = t.det / sum;
+  if (dot(t.n[0], ray) < 0.f || dot(t.n[1], ray) < 0.f || dot(t.n[2], ray) < 0.f) return false;
+  const float along_normal = dot(t.normal, ray);
+  if (!(along_normal > 0.f)) return false;
+  depth_m = t.offset / along_normal;
   return depth_m >= near_m;
 }
 
@@ -233,12 +259,13 @@ PERCH2_HD inline Rgb8 sample_texture(const MeshView& m, float u, float v) {
   return {mix(c00.r, c10.r, c01.r, c11.r), mix(c00.g, c10.g, c01.g, c11.g), mix(c00.b, c10.b, c01.b, c11.b)};
 }
 
-/// Colour of triangle `tri` (camera-frame corners a, b, c) where `ray` hits it: texture, else
+/// Colour of triangle `tri` (camera-frame corners a, b, c) at its camera-frame point `hit`: texture, else
 /// interpolated vertex colours, else the model's base colour.
-PERCH2_HD inline Rgb8 shade(const MeshView& m, int tri, Vec3f a, Vec3f b, Vec3f c, Vec3f ray) {
-  const float e0 = dot(cross(b, c), ray), e1 = dot(cross(c, a), ray), e2 = dot(cross(a, b), ray);
-  const float inv = 1.f / (e0 + e1 + e2);
-  const float w0 = e0 * inv, w1 = e1 * inv, w2 = e2 * inv;  // perspective-correct barycentrics
+PERCH2_HD inline Rgb8 shade(const MeshView& m, int tri, Vec3f a, Vec3f b, Vec3f c, Vec3f hit) {
+  const Vec3f e1 = b - a, e2 = c - a, q = hit - a, normal = cross(e1, e2);
+  const float inv = 1.f / dot(normal, normal);
+  const float w1 = dot(cross(q, e2), normal) * inv, w2 = dot(cross(e1, q), normal) * inv;
+  const float w0 = 1.f - w1 - w2;  // barycentrics of the 3-D hit: perspective-correct by construction
   if (m.texture && m.corner_uvs) {
     const Vec2f t0 = m.corner_uvs[3 * tri], t1 = m.corner_uvs[3 * tri + 1], t2 = m.corner_uvs[3 * tri + 2];
     return sample_texture(m, w0 * t0.x + w1 * t1.x + w2 * t2.x, w0 * t0.y + w1 * t1.y + w2 * t2.y);
@@ -346,7 +373,7 @@ PERCH2_HD inline bool resolve_sample(const MeshView& m, const Vec3f* verts_cam, 
   const Vec3f ray = grid_ray(K, stride, i, j);
   out.p_cam = depth_m * ray;
   const std::int32_t* f = m.triangles + 3 * tri;
-  out.rgb = pack_rgb(shade(m, tri, verts_cam[f[0]], verts_cam[f[1]], verts_cam[f[2]], ray));
+  out.rgb = pack_rgb(shade(m, tri, verts_cam[f[0]], verts_cam[f[1]], verts_cam[f[2]], out.p_cam));
   return true;
 }
 
