@@ -1,6 +1,8 @@
 // Render throughput and peak memory: 2,000 poses of a ~10k-triangle mesh, 640x480, strides 1/4/8, per
 // backend.
-//   bench_render [--runs N] [--poses N] [--stride S] [--backend cpu|thrust_omp] [--model FILE --scale S]
+//   bench_render [--runs N] [--poses N] [--stride S] [--backend embree|cpu|thrust_omp]
+//                [--model FILE --scale S] [--load N]
+// --load N runs N busy processes alongside (a shared CPU); Embree (libembree-dev) is the peer when found.
 // Default mesh: a procedural 10,224-triangle lumpy sphere with vertex colours (always available); with
 // ../shared/data present the YCB banana (15,728 triangles, 4096^2 texture) is measured too.
 #include <omp.h>
@@ -16,6 +18,9 @@
 #include "perch2/cuda/backend.hpp"
 #include "perch2/io/io.hpp"
 #include "render_fixtures.hpp"
+#ifdef PERCH2_HAVE_EMBREE
+#include "embree_peer.hpp"
+#endif
 
 using namespace perch2;
 
@@ -70,9 +75,15 @@ void run(Mesh mesh, int num_poses, int runs) {
   const auto hyps = poses(num_poses, mesh);
   std::printf("\n%s: %zu triangles, %s, %d poses, 640x480, median of %d runs\n\n", mesh.name.c_str(),
               mesh.triangles.size(), mesh.has_texture() ? "textured" : "vertex colours", num_poses, runs);
-  std::printf("| backend    | stride | hypotheses/s | vs cpu   | points/hyp | peak MiB* |\n");
+  std::printf("| backend    | stride | hypotheses/s | vs first | points/hyp | peak MiB* |\n");
   std::printf("|------------|--------|--------------|----------|------------|-----------|\n");
-  double reference[3] = {0, 0, 0};
+  double reference[3] = {0, 0, 0};  // the first row measured: Embree when built with it, else cpu
+#ifdef PERCH2_HAVE_EMBREE
+  if (only_backend.empty() || only_backend == "embree")
+    measure<bench::EmbreeRenderer>("Embree 3", mesh, hyps, runs, reference);
+#else
+  std::printf("| Embree 3   | (not built: install libembree-dev and reconfigure) |\n");
+#endif
   if (only_backend.empty() || only_backend == "cpu")
     measure<cpu::Renderer>("cpu", mesh, hyps, runs, reference);
   if (only_backend.empty() || only_backend == "thrust_omp")
@@ -82,7 +93,7 @@ void run(Mesh mesh, int num_poses, int runs) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  int runs = 5, num_poses = 2000;
+  int runs = 5, num_poses = 2000, load = 0;
   std::string model;
   float scale = 1.f;
   for (int k = 1; k + 1 < argc; k += 2) {
@@ -99,8 +110,12 @@ int main(int argc, char** argv) {
       model = argv[k + 1];
     else if (a == "--scale")
       scale = std::stof(argv[k + 1]);
+    else if (a == "--load")
+      load = std::stoi(argv[k + 1]);
   }
-  std::printf("bench_render on %s, %d threads\n", bench::cpu_model().c_str(), omp_get_max_threads());
+  std::printf("bench_render on %s, %d threads, %d competing busy processes\n", bench::cpu_model().c_str(),
+              omp_get_max_threads(), load);
+  const bench::CompetingLoad competing(load);
   std::printf(
       "* peak MiB: peak resident memory of a process that holds the loaded mesh, builds the renderer and "
       "renders the batch (one process per row)\n");

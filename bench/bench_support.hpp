@@ -1,6 +1,7 @@
 // Benchmark helpers: medians, peak memory of a configuration measured in a child process, machine name.
 #pragma once
 
+#include <signal.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -71,5 +72,30 @@ inline std::array<double, 3> in_child(const std::function<std::array<double, 2>(
   waitpid(pid, &status, 0);
   return in;
 }
+
+/// `n` busy processes spinning for this object's lifetime: the "shared CPU" condition of a robot, where
+/// another process competes for the cores the estimator's threads expect (bench option --load N).
+class CompetingLoad {
+ public:
+  explicit CompetingLoad(int n) {
+    for (int k = 0; k < n; ++k) {
+      const pid_t pid = fork();
+      if (pid == 0) {
+        for (volatile unsigned long spin = 0;; spin = spin + 1) {
+        }
+      }
+      if (pid > 0) pids_.push_back(pid);
+    }
+  }
+  ~CompetingLoad() {
+    for (const pid_t pid : pids_) kill(pid, SIGKILL);
+    for (const pid_t pid : pids_) waitpid(pid, nullptr, 0);
+  }
+  CompetingLoad(const CompetingLoad&) = delete;
+  CompetingLoad& operator=(const CompetingLoad&) = delete;
+
+ private:
+  std::vector<pid_t> pids_;
+};
 
 }  // namespace perch2::bench
