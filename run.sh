@@ -26,6 +26,24 @@ install_deps() {
   fi
 }
 
+# Optional benchmark peers (never needed to build or run the library): Embree and nanoflann from Debian,
+# small_gicp's headers from its PyPI source package, unpacked under build/_peers. Prints small_gicp's include
+# folder, or nothing when it cannot be had.
+bench_peers() {
+  local sudo=""
+  [ "$(id -u)" -eq 0 ] || sudo=sudo
+  dpkg-query -W -f='${Status}' libembree-dev 2>/dev/null | grep -q 'install ok installed' ||
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends libembree-dev \
+      libnanoflann-dev >/dev/null 2>&1 || true
+  local dir=build/_peers/small_gicp-1.0.1
+  if [ ! -d "$dir/include" ]; then
+    mkdir -p build/_peers
+    (python3 -m pip download -q --no-deps --no-binary :all: small_gicp==1.0.1 -d build/_peers >/dev/null 2>&1 &&
+      tar xzf build/_peers/small_gicp-1.0.1.tar.gz -C build/_peers) || true
+  fi
+  if [ -d "$dir/include" ]; then echo "$PWD/$dir/include"; fi
+}
+
 build() {  # build DIR [cmake options...]
   local dir=$1
   shift
@@ -48,7 +66,7 @@ case "$cmd" in
     ;;
   bench)
     install_deps
-    build build -DPERCH2_WITH_CUDA=OFF
+    build build -DPERCH2_WITH_CUDA=OFF -DPERCH2_SMALL_GICP_INCLUDE_DIR="$(bench_peers)"
     for b in build/bench/bench_*; do [ -x "$b" ] && "$b" "$@"; done
     ;;
   cuda)

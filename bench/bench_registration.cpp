@@ -8,7 +8,12 @@
 // its memory the peak RSS while it ran (VmHWM reset after building the problem; getrusage ru_maxrss) and the
 // growth over the RSS it started with.
 //
+// small_gicp 1.0.1 (header-only; `./run.sh bench` unpacks its PyPI source package for this benchmark only) is
+// the peer a user would pick today: target kd-tree and covariances built once, OpenMP over sources, one
+// serial registration per source with the same k, cap, iterations and tolerances.
+//
 //   bench_registration [--sources 2400] [--runs 3] [--model path/to/obj_06.ply] [--no-pcl]
+//                      [--translation-eps M] [--rotation-eps RAD] [--load N]
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -31,6 +36,18 @@
 #include "perch2/io/mesh_io.hpp"
 
 #include <omp.h>
+
+#include "bench_support.hpp"
+
+#ifdef PERCH2_HAVE_SMALL_GICP
+#include <small_gicp/ann/kdtree_omp.hpp>
+#include <small_gicp/factors/gicp_factor.hpp>
+#include <small_gicp/points/point_cloud.hpp>
+#include <small_gicp/registration/reduction.hpp>
+#include <small_gicp/registration/registration.hpp>
+#include <small_gicp/util/normal_estimation.hpp>
+#include <small_gicp/util/normal_estimation_omp.hpp>
+#endif
 
 #ifdef PERCH2_HAVE_PCL
 #include <pcl/point_cloud.h>
@@ -129,15 +146,21 @@ Problem make_problem(const Mesh& mesh, int num_sources, std::mt19937& rng) {
   return p;
 }
 
+float translation_eps_m = -1, rotation_eps_rad = -1;  // --translation-eps / --rotation-eps; < 0: defaults
+
 GicpSettings bench_gicp_settings() {
-  GicpSettings gs;  // library defaults (k = 10, epsilon 1e-3, 30 iterations, 1e-5 m / rad) but a 5 cm cap
+  GicpSettings gs;  // library defaults (k = 10, epsilon 1e-3, 30 iterations) but a 5 cm cap
   gs.max_correspondence_distance_m = 0.05f;
+  if (translation_eps_m >= 0) gs.translation_epsilon_m = translation_eps_m;
+  if (rotation_eps_rad >= 0) gs.rotation_epsilon_rad = rotation_eps_rad;
   return gs;
 }
 
 IcpSettings bench_icp_settings() {
   IcpSettings is;
   is.max_correspondence_distance_m = 0.05f;
+  if (translation_eps_m >= 0) is.translation_epsilon_m = translation_eps_m;
+  if (rotation_eps_rad >= 0) is.rotation_epsilon_rad = rotation_eps_rad;
   return is;
 }
 
@@ -217,7 +240,7 @@ void row(const char* name, const Measured& m, const Scores& s, std::size_t num, 
 
 /// Runs one method in this process and prints its table row and "rate=<alignments/s>".
 int run_method(const std::string& method, int num_sources, int runs, const std::string& model,
-               double pcl_rate) {
+               double peer_rate) {
   io::MeshLoadOptions opt;
   opt.scale = 0.001f;
   const Mesh mesh = io::load_mesh(model, opt);
@@ -238,7 +261,46 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
   std::vector<std::uint8_t> conv;
   Measured m;
   const char* name = "";
-  if (method == "pcl") {
+  if (method == "small_gicp") {
+#ifdef PERCH2_HAVE_SMALL_GICP
+    name = "small_gicp 1.0.1 GICP";
+    using small_gicp::PointCloud;
+    auto to_cloud = [](const CloudBatch& b, std::size_t c) {
+      std::vector<Eigen::Vector4d> pts;
+      for (auto i = b.offsets[c]; i < b.offsets[c + 1]; ++i) pts.emplace_back(b.x[i], b.y[i], b.z[i], 1.0);
+      return std::make_shared<PointCloud>(pts);
+    };
+    m = measure(
+        runs,
+        [&](std::vector<Pose>& Tout, std::vector<std::uint8_t>& cout) {
+          Tout.assign(num, Pose::Identity());
+          cout.assign(num, 0);
+          const int threads = omp_get_max_threads();
+          const auto target = to_cloud(p.target, 0);  // target structures once, as perch2 does
+          const small_gicp::KdTree<PointCloud> tree(target, small_gicp::KdTreeBuilderOMP(threads));
+          small_gicp::estimate_covariances_omp(*target, tree, gs.k_neighbors, threads);
+          small_gicp::Registration<small_gicp::GICPFactor, small_gicp::SerialReduction> reg;
+          reg.rejector.max_dist_sq =
+              double(gs.max_correspondence_distance_m) * gs.max_correspondence_distance_m;
+          reg.criteria.translation_eps = gs.translation_epsilon_m;
+          reg.criteria.rotation_eps = gs.rotation_epsilon_rad;
+          reg.optimizer.max_iterations = gs.max_iterations;
+#pragma omp parallel for schedule(dynamic)
+          for (std::ptrdiff_t h = 0; h < std::ptrdiff_t(num); ++h) {
+            const auto source = to_cloud(p.sources, std::size_t(h));
+            const small_gicp::KdTree<PointCloud> source_tree(source);
+            small_gicp::estimate_covariances(*source, source_tree, gs.k_neighbors);
+            const auto r = reg.align(*target, *source, tree);
+            Tout[std::size_t(h)] = Pose(r.T_target_source.cast<float>().matrix());
+            cout[std::size_t(h)] = r.converged ? 1 : 0;
+          }
+        },
+        T, conv);
+#else
+    std::printf("| small_gicp                   | not built: run ./run.sh bench (unpacks its headers) |\n");
+    return 0;
+#endif
+  } else if (method == "pcl") {
 #ifdef PERCH2_HAVE_PCL
     name = "PCL GICP (OpenMP over pairs)";
     using Cloud = pcl::PointCloud<pcl::PointXYZ>;
@@ -306,7 +368,7 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
       return 2;
     }
   }
-  row(name, m, score(p, T, conv), num, pcl_rate);
+  row(name, m, score(p, T, conv), num, peer_rate);
   std::printf("rate=%.6g\n", double(num) / m.median_s);
   return 0;
 }
@@ -314,8 +376,9 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
 int main(int argc, char** argv) {
   int num_sources = 2400, runs = 3;
   std::string model, method;
-  double pcl_rate = 0;
+  double peer_rate = 0;
   bool use_pcl = true;
+  int load = 0;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--sources" && i + 1 < argc)
@@ -326,10 +389,16 @@ int main(int argc, char** argv) {
       model = argv[++i];
     else if (a == "--method" && i + 1 < argc)
       method = argv[++i];
-    else if (a == "--pcl-rate" && i + 1 < argc)
-      pcl_rate = std::atof(argv[++i]);
+    else if (a == "--peer-rate" && i + 1 < argc)
+      peer_rate = std::atof(argv[++i]);
     else if (a == "--no-pcl")
       use_pcl = false;
+    else if (a == "--translation-eps" && i + 1 < argc)
+      translation_eps_m = float(std::atof(argv[++i]));
+    else if (a == "--rotation-eps" && i + 1 < argc)
+      rotation_eps_rad = float(std::atof(argv[++i]));
+    else if (a == "--load" && i + 1 < argc)
+      load = std::atoi(argv[++i]);
     else {
       std::fprintf(stderr, "usage: %s [--sources N] [--runs R] [--model obj_06.ply] [--no-pcl]\n", argv[0]);
       return 2;
@@ -340,19 +409,22 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "LINEMOD cat model not found: pass --model path/to/obj_06.ply\n");
     return 2;
   }
-  if (!method.empty()) return run_method(method, num_sources, runs, model, pcl_rate);
+  if (!method.empty()) return run_method(method, num_sources, runs, model, peer_rate);
+  const bench::CompetingLoad competing(load);
 
   // One fresh process per method: separate peak-memory figures, and no OpenMP state shared across methods.
   auto run = [&](const std::string& m) {
     const std::string cmd = std::string(argv[0]) + " --method " + m + " --sources " +
                             std::to_string(num_sources) + " --runs " + std::to_string(runs) + " --model '" +
-                            model + "' --pcl-rate " + std::to_string(pcl_rate);
+                            model + "' --peer-rate " + std::to_string(peer_rate) + " --translation-eps " +
+                            bench::format("%g", translation_eps_m) + " --rotation-eps " +
+                            bench::format("%g", rotation_eps_rad);
     FILE* f = popen(cmd.c_str(), "r");
     if (!f) return;
     char line[1024];
     while (std::fgets(line, sizeof line, f)) {
       if (std::strncmp(line, "rate=", 5) == 0) {
-        if (m == "pcl") pcl_rate = std::atof(line + 5);
+        if (peer_rate == 0 && (m == "small_gicp" || m == "pcl")) peer_rate = std::atof(line + 5);
       } else {
         std::fputs(line, stdout);
       }
@@ -366,13 +438,15 @@ int main(int argc, char** argv) {
   const GicpSettings gs = bench_gicp_settings();
   std::printf(
       "settings: max_correspondence_distance %.3f m, max_iterations %d, epsilons %.0e m / %.0e rad, "
-      "k %d, covariance epsilon %.0e (PCL GICP gets the same values)\n\n",
+      "k %d, covariance epsilon %.0e (small_gicp and PCL GICP get the same values); %d competing busy "
+      "processes\n\n",
       gs.max_correspondence_distance_m, gs.max_iterations, gs.translation_epsilon_m, gs.rotation_epsilon_rad,
-      gs.k_neighbors, gs.covariance_epsilon);
+      gs.k_neighbors, gs.covariance_epsilon, load);
   std::printf(
-      "| method                       | median s | aligns/s | vs PCL  | peak MB  | growth MB| med RMS mm| "
+      "| method                       | median s | aligns/s | vs peer | peak MB  | growth MB| med RMS mm| "
       "mean RMS mm| med disp mm| <1mm  | conv   |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+  run("small_gicp");  // the peer the ratio column refers to (PCL when small_gicp is not built)
   if (use_pcl) run("pcl");
   for (const char* m : {"cpu_gicp", "omp_gicp", "cpu_icp", "omp_icp"}) run(m);
   std::printf(

@@ -34,6 +34,14 @@ inline double median_seconds(int runs, const std::function<void()>& f) {
   return median(t);
 }
 
+/// printf-style formatting of one value into a string.
+template <class T>
+std::string format(const char* fmt, T value) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, fmt, value);
+  return buf;
+}
+
 inline std::string cpu_model() {
   std::ifstream f("/proc/cpuinfo");
   for (std::string line; std::getline(f, line);)
