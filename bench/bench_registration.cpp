@@ -13,7 +13,7 @@
 // serial registration per source with the same k, cap, iterations and tolerances.
 //
 //   bench_registration [--sources 2400] [--runs 3] [--model path/to/obj_06.ply] [--no-pcl]
-//                      [--translation-eps M] [--rotation-eps RAD] [--load N]
+//                      [--scale S] [--translation-eps M] [--rotation-eps RAD] [--load N]
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -97,6 +97,7 @@ struct Scores {
   double median_rms_mm = 0, mean_rms_mm = 0, median_disp_mm = 0;
   double within_1mm = 0;  ///< fraction of hypotheses whose mean displacement from the ideal is < 1 mm
   double converged = 0;
+  double mean_passes = -1;  ///< correspondence passes per source (time is about proportional); -1: unknown
 };
 
 std::string find_model(const std::string& given) {
@@ -146,6 +147,7 @@ Problem make_problem(const Mesh& mesh, int num_sources, std::mt19937& rng) {
   return p;
 }
 
+float model_scale = 0.001f;                           // --scale: model units to metres (LINEMOD PLY: mm)
 float translation_eps_m = -1, rotation_eps_rad = -1;  // --translation-eps / --rotation-eps; < 0: defaults
 
 GicpSettings bench_gicp_settings() {
@@ -164,7 +166,8 @@ IcpSettings bench_icp_settings() {
   return is;
 }
 
-Scores score(const Problem& p, const std::vector<Pose>& T, const std::vector<std::uint8_t>& converged) {
+Scores score(const Problem& p, const std::vector<Pose>& T, const std::vector<std::uint8_t>& converged,
+             const std::vector<int>& passes) {
   CloudBatch moved = p.sources;
   for (std::size_t h = 0; h < p.sources.num_clouds(); ++h)
     for (auto i = p.sources.offsets[h]; i < p.sources.offsets[h + 1]; ++i) {
@@ -194,6 +197,10 @@ Scores score(const Problem& p, const std::vector<Pose>& T, const std::vector<std
   const double N = double(rms.size());
   for (double x : rms) s.mean_rms_mm += x / N;
   s.within_1mm /= N;
+  if (!passes.empty()) {
+    s.mean_passes = 0;
+    for (int n : passes) s.mean_passes += double(n) / N;
+  }
   s.converged /= N;
   std::nth_element(rms.begin(), rms.begin() + rms.size() / 2, rms.end());
   std::nth_element(disp.begin(), disp.begin() + disp.size() / 2, disp.end());
@@ -229,10 +236,11 @@ Measured measure(int runs, const std::function<void(std::vector<Pose>&, std::vec
 void row(const char* name, const Measured& m, const Scores& s, std::size_t num, double ref_rate) {
   const double rate = double(num) / m.median_s;
   std::printf(
-      "| %-28s | %8.3f | %9.0f | %6.2fx | %8.1f | %8.1f | %8.3f | %8.3f | %8.3f | %5.1f%% | %5.1f%% |\n",
+      "| %-28s | %8.3f | %9.0f | %6.2fx | %8.1f | %8.1f | %8.3f | %8.3f | %8.3f | %5.1f%% | %5.1f%% | %6.2f "
+      "|\n",
       name, m.median_s, rate, ref_rate > 0 ? rate / ref_rate : 1.0, double(m.peak_kb) / 1024,
       double(m.growth_kb) / 1024, s.median_rms_mm, s.mean_rms_mm, s.median_disp_mm, 100 * s.within_1mm,
-      100 * s.converged);
+      100 * s.converged, s.mean_passes);
   std::fflush(stdout);
 }
 
@@ -242,7 +250,7 @@ void row(const char* name, const Measured& m, const Scores& s, std::size_t num, 
 int run_method(const std::string& method, int num_sources, int runs, const std::string& model,
                double peer_rate) {
   io::MeshLoadOptions opt;
-  opt.scale = 0.001f;
+  opt.scale = model_scale;
   const Mesh mesh = io::load_mesh(model, opt);
   std::mt19937 rng(2020);
   const Problem p = make_problem(mesh, num_sources, rng);
@@ -259,6 +267,7 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
   const IcpSettings is = bench_icp_settings();
   std::vector<Pose> T;
   std::vector<std::uint8_t> conv;
+  std::vector<int> passes;  // filled by the methods that report it
   Measured m;
   const char* name = "";
   if (method == "small_gicp") {
@@ -275,6 +284,7 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
         [&](std::vector<Pose>& Tout, std::vector<std::uint8_t>& cout) {
           Tout.assign(num, Pose::Identity());
           cout.assign(num, 0);
+          passes.assign(num, 0);
           const int threads = omp_get_max_threads();
           const auto target = to_cloud(p.target, 0);  // target structures once, as perch2 does
           const small_gicp::KdTree<PointCloud> tree(target, small_gicp::KdTreeBuilderOMP(threads));
@@ -293,6 +303,7 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
             const auto r = reg.align(*target, *source, tree);
             Tout[std::size_t(h)] = Pose(r.T_target_source.cast<float>().matrix());
             cout[std::size_t(h)] = r.converged ? 1 : 0;
+            passes[std::size_t(h)] = int(r.iterations);
           }
         },
         T, conv);
@@ -352,6 +363,7 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
                 gicp ? reg.gicp(p.sources, p.segment, gs) : reg.icp(p.sources, p.segment, is);
             Tout = r.T_corr;
             cout = r.converged;
+            passes = r.iterations;
           },
           T, conv);
     };
@@ -368,7 +380,7 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
       return 2;
     }
   }
-  row(name, m, score(p, T, conv), num, peer_rate);
+  row(name, m, score(p, T, conv, passes), num, peer_rate);
   std::printf("rate=%.6g\n", double(num) / m.median_s);
   return 0;
 }
@@ -397,6 +409,8 @@ int main(int argc, char** argv) {
       translation_eps_m = float(std::atof(argv[++i]));
     else if (a == "--rotation-eps" && i + 1 < argc)
       rotation_eps_rad = float(std::atof(argv[++i]));
+    else if (a == "--scale" && i + 1 < argc)
+      model_scale = float(std::atof(argv[++i]));
     else if (a == "--load" && i + 1 < argc)
       load = std::atoi(argv[++i]);
     else {
@@ -414,11 +428,11 @@ int main(int argc, char** argv) {
 
   // One fresh process per method: separate peak-memory figures, and no OpenMP state shared across methods.
   auto run = [&](const std::string& m) {
-    const std::string cmd = std::string(argv[0]) + " --method " + m + " --sources " +
-                            std::to_string(num_sources) + " --runs " + std::to_string(runs) + " --model '" +
-                            model + "' --peer-rate " + std::to_string(peer_rate) + " --translation-eps " +
-                            bench::format("%g", translation_eps_m) + " --rotation-eps " +
-                            bench::format("%g", rotation_eps_rad);
+    const std::string cmd =
+        std::string(argv[0]) + " --method " + m + " --sources " + std::to_string(num_sources) + " --runs " +
+        std::to_string(runs) + " --model '" + model + "' --peer-rate " + std::to_string(peer_rate) +
+        " --translation-eps " + bench::format("%g", translation_eps_m) + " --rotation-eps " +
+        bench::format("%g", rotation_eps_rad) + " --scale " + bench::format("%g", model_scale);
     FILE* f = popen(cmd.c_str(), "r");
     if (!f) return;
     char line[1024];
@@ -444,15 +458,17 @@ int main(int argc, char** argv) {
       gs.k_neighbors, gs.covariance_epsilon, load);
   std::printf(
       "| method                       | median s | aligns/s | vs peer | peak MB  | growth MB| med RMS mm| "
-      "mean RMS mm| med disp mm| <1mm  | conv   |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+      "mean RMS mm| med disp mm| <1mm  | conv   | passes |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   run("small_gicp");  // the peer the ratio column refers to (PCL when small_gicp is not built)
   if (use_pcl) run("pcl");
   for (const char* m : {"cpu_gicp", "omp_gicp", "cpu_icp", "omp_icp"}) run(m);
   std::printf(
       "\nRMS: nearest-neighbour distance of the aligned source to the target; disp: mean distance of the\n"
       "aligned source points from their ideal positions (the known perturbation undone); <1mm: share of\n"
-      "hypotheses with disp < 1 mm; conv: share reported converged. peak: the method's peak RSS (reset\n"
+      "hypotheses with disp < 1 mm; conv: share reported converged; passes: correspondence passes per "
+      "source\n"
+      "(-1: not reported). peak: the method's peak RSS (reset\n"
       "after the problem was built); growth: that peak minus the RSS before the method ran.\n");
   return 0;
 }
