@@ -35,7 +35,7 @@ void render_one(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label,
   const PosedVertices posed{scratch.verts_cam.data(), scratch.spans.data()};
   scratch.zbuf.assign(std::size_t(roi.size()), kEmptyPixel);
   DepthTriangle* zbuf = scratch.zbuf.data();
-  rasterize_triangles(m, posed, 0, m.num_triangles, K, s.stride, s.near_m, roi, s.cull_back_faces,
+  rasterize_triangles(m, posed, 0, m.num_triangles, T_cam_obj, K, s.stride, s.near_m, roi, s.cull_back_faces,
                       [zbuf](int idx, DepthTriangle w) { zbuf[idx] = std::min(zbuf[idx], w); });
   for (int j = 0; j < roi.height; ++j)
     for (int i = 0; i < roi.width; ++i) {

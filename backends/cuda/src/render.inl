@@ -29,6 +29,7 @@ struct DeviceMesh {
   thrust::device_vector<std::int32_t> triangles;
   thrust::device_vector<Rgb8> vertex_colors, texture;
   thrust::device_vector<Vec2f> corner_uvs;
+  thrust::device_vector<TriangleCluster> clusters;
   MeshView view;
 
   explicit DeviceMesh(const MeshArrays& a)
@@ -37,7 +38,9 @@ struct DeviceMesh {
         vertex_colors(to_device(a.vertex_colors)),
         texture(to_device(a.texture)),
         corner_uvs(to_device(a.corner_uvs)),
-        view(a.view(ptr(vertices), ptr(triangles), ptr(vertex_colors), ptr(corner_uvs), ptr(texture))) {}
+        clusters(to_device(a.clusters)),
+        view(a.view(ptr(vertices), ptr(triangles), ptr(vertex_colors), ptr(corner_uvs), ptr(texture),
+                    ptr(clusters))) {}
 };
 
 /// Per-hypothesis inputs of one render call, in device memory.
@@ -112,7 +115,7 @@ struct Rasterize {
     const std::int64_t base = c.vertices.elements[r.segment];
     const PosedVertices posed{c.verts_cam + base, c.spans + base};
     const MeshView& m = h.views[h.model[hyp]];
-    rasterize_triangles(m, posed, int(r.begin), int(r.end), K, stride, near_m, roi, cull,
+    rasterize_triangles(m, posed, int(r.begin), int(r.end), h.T_cam_obj[hyp], K, stride, near_m, roi, cull,
                         [zbuf](int idx, DepthTriangle w) {
                           auto* word = reinterpret_cast<unsigned long long*>(zbuf + idx);
                           if (w >= *word) return;  // cheap pre-check; the atomic decides

@@ -1,7 +1,10 @@
 // Host-side flattening of a Mesh into the arrays a MeshView points at (both backends start from this).
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
+#include <numeric>
 #include <utility>
 #include <vector>
 
@@ -16,6 +19,7 @@ struct MeshArrays {
   std::vector<std::int32_t> triangles;
   std::vector<Rgb8> vertex_colors, texture;
   std::vector<Vec2f> corner_uvs;
+  std::vector<TriangleCluster> clusters;  ///< cover the triangles in order (see cluster_triangles)
   int texture_width = 0, texture_height = 0;
   Rgb8 base_color{200, 200, 200};
   Vec3f box_min{0, 0, 0}, box_max{0, 0, 0};
@@ -38,12 +42,16 @@ struct MeshArrays {
     const auto box = mesh.bounds();
     mesh = Mesh{};
     box_min = to_vec3(box.min()), box_max = to_vec3(box.max());
+    cluster_triangles();
   }
 
-  /// A view whose pointers address the given (host or device) copies of these arrays.
-  MeshView view(const Vec3f* v, const std::int32_t* t, const Rgb8* vc, const Vec2f* uv,
-                const Rgb8* tex) const {
+  /// A view whose pointers address the given (host or device) copies of these arrays (`cl`: of clusters;
+  /// null renders without cluster culling, with identical results on well-conditioned meshes).
+  MeshView view(const Vec3f* v, const std::int32_t* t, const Rgb8* vc, const Vec2f* uv, const Rgb8* tex,
+                const TriangleCluster* cl = nullptr) const {
     MeshView m;
+    m.clusters = clusters.empty() ? nullptr : cl;
+    m.num_clusters = m.clusters ? int(clusters.size()) : 0;
     m.vertices = v, m.triangles = t;
     m.vertex_colors = vertex_colors.empty() ? nullptr : vc;
     m.corner_uvs = corner_uvs.empty() ? nullptr : uv;
@@ -54,7 +62,120 @@ struct MeshArrays {
     return m;
   }
   MeshView host_view() const {
-    return view(vertices.data(), triangles.data(), vertex_colors.data(), corner_uvs.data(), texture.data());
+    return view(vertices.data(), triangles.data(), vertex_colors.data(), corner_uvs.data(), texture.data(),
+                clusters.data());
+  }
+
+  /// Triangles per cluster: enough to amortise the cone test, few enough for tight cones and spheres.
+  static constexpr int kClusterTriangles = 64;
+
+  /// Regroups the triangles (and their corner UVs) into clusters: triangles are binned by normal direction
+  /// (6 cube faces x 4 x 4 cells, ~12 deg wide) and ordered along a Morton curve of their centroids inside a
+  /// bin, then cut into runs of kClusterTriangles. Each cluster gets the tightest cone around its unit
+  /// normals (about their mean) and a bounding sphere. Degenerate triangles never render and do not widen
+  /// cones.
+  void cluster_triangles() {
+    const int n = int(triangles.size() / 3);
+    std::vector<std::uint64_t> key(static_cast<std::size_t>(n), 0);
+    std::vector<Vec3f> unit_normal(static_cast<std::size_t>(n), Vec3f{0, 0, 0});
+    const Vec3f extent = box_max - box_min;
+    const float scale = 1023.f / std::max(std::max(extent.x, extent.y), std::max(extent.z, 1e-12f));
+    for (int t = 0; t < n; ++t) {
+      const Vec3f a = corner(t, 0), b = corner(t, 1), c = corner(t, 2);
+      const Vec3f nrm = cross(b - a, c - a);
+      const float len = std::sqrt(dot(nrm, nrm));
+      if (len > 0.f) unit_normal[std::size_t(t)] = (1.f / len) * nrm;
+      const Vec3f centroid = (1.f / 3.f) * (a + b + c) - box_min;
+      key[std::size_t(t)] =
+          (std::uint64_t(direction_bin(unit_normal[std::size_t(t)])) << 30) |
+          morton3(unsigned(centroid.x * scale), unsigned(centroid.y * scale), unsigned(centroid.z * scale));
+    }
+    std::vector<int> order(static_cast<std::size_t>(n));
+    std::iota(order.begin(), order.end(), 0);
+    std::stable_sort(order.begin(), order.end(), [&](int p, int q) { return key[p] < key[q]; });
+    permute_triangles(order);
+    std::vector<Vec3f> sorted_normal(static_cast<std::size_t>(n));
+    for (int t = 0; t < n; ++t) sorted_normal[std::size_t(t)] = unit_normal[std::size_t(order[t])];
+    clusters.clear();
+    for (int begin = 0; begin < n;) {
+      int end = begin + 1;
+      while (end < n && end - begin < kClusterTriangles &&
+             (key[order[end]] >> 30) == (key[order[begin]] >> 30))
+        ++end;
+      clusters.push_back(bound_cluster(begin, end, sorted_normal));
+      begin = end;
+    }
+  }
+
+ private:
+  Vec3f corner(int t, int k) const { return vertices[std::size_t(triangles[std::size_t(3 * t + k)])]; }
+
+  static unsigned direction_bin(Vec3f d) {  // 96 bins: cube face of the dominant axis x 4 x 4 cells
+    const float ax = std::abs(d.x), ay = std::abs(d.y), az = std::abs(d.z);
+    int face;
+    float u, v, m;
+    if (ax >= ay && ax >= az)
+      face = d.x >= 0 ? 0 : 1, u = d.y, v = d.z, m = ax;
+    else if (ay >= az)
+      face = d.y >= 0 ? 2 : 3, u = d.x, v = d.z, m = ay;
+    else
+      face = d.z >= 0 ? 4 : 5, u = d.x, v = d.y, m = az;
+    if (m == 0.f) return 0;
+    auto cell = [m](float w) { return std::min(3, int((w / m + 1.f) * 2.f)); };
+    return unsigned(face * 16 + cell(u) * 4 + cell(v));
+  }
+
+  static std::uint64_t morton3(unsigned x, unsigned y, unsigned z) {  // 10 bits each
+    std::uint64_t out = 0;
+    for (int b = 0; b < 10; ++b)
+      out |= std::uint64_t((x >> b) & 1u) << (3 * b) | std::uint64_t((y >> b) & 1u) << (3 * b + 1) |
+             std::uint64_t((z >> b) & 1u) << (3 * b + 2);
+    return out;
+  }
+
+  void permute_triangles(const std::vector<int>& order) {
+    std::vector<std::int32_t> tri(triangles.size());
+    std::vector<Vec2f> uv(corner_uvs.size());
+    for (std::size_t t = 0; t < order.size(); ++t)
+      for (int k = 0; k < 3; ++k) {
+        tri[3 * t + k] = triangles[std::size_t(3 * order[t] + k)];
+        if (!uv.empty()) uv[3 * t + k] = corner_uvs[std::size_t(3 * order[t] + k)];
+      }
+    triangles = std::move(tri);
+    corner_uvs = std::move(uv);
+  }
+
+  TriangleCluster bound_cluster(int begin, int end, const std::vector<Vec3f>& normal) const {
+    TriangleCluster c;
+    c.first = begin, c.count = end - begin;
+    Vec3f lo{1e30f, 1e30f, 1e30f}, hi{-1e30f, -1e30f, -1e30f}, sum{0, 0, 0};
+    for (int t = begin; t < end; ++t) {
+      sum = sum + normal[std::size_t(t)];
+      for (int k = 0; k < 3; ++k) {
+        const Vec3f p = corner(t, k);
+        lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
+        hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
+      }
+    }
+    c.center = 0.5f * (lo + hi);
+    for (int t = begin; t < end; ++t)
+      for (int k = 0; k < 3; ++k) {
+        const Vec3f d = corner(t, k) - c.center;
+        c.radius = std::max(c.radius, std::sqrt(dot(d, d)));
+      }
+    c.radius *= 1.0001f;  // rounding of the sphere itself
+    const float len = std::sqrt(dot(sum, sum));
+    if (!(len > 0.f)) return c;  // all degenerate, or normals cancel: never culled
+    c.axis = (1.f / len) * sum;
+    float cos_half = 1.f;
+    for (int t = begin; t < end; ++t)
+      if (dot(normal[std::size_t(t)], normal[std::size_t(t)]) > 0.f)
+        cos_half = std::min(cos_half, dot(c.axis, normal[std::size_t(t)]));
+    // Widen by 0.01 rad for the rounding of unit normals; a cone of 90 deg or more is never culled.
+    const double half = std::acos(std::max(-1.0, std::min(1.0, double(cos_half)))) + 0.01;
+    c.cos_half = half < 1.5707963 ? float(std::cos(half)) : -1.f;
+    c.sin_half = float(std::sin(std::min(half, 1.5707963)));
+    return c;
   }
 };
 

@@ -23,6 +23,30 @@
 
 namespace perch2 {
 
+/// A run of nearby, similarly oriented triangles with a bounding sphere and a cone holding their normals
+/// (object frame), precomputed once per model: a cluster that faces away from the camera as a whole is
+/// skipped without touching its triangles (back-face culling per cluster rather than per triangle).
+struct TriangleCluster {
+  int first = 0, count = 0;  ///< triangles [first, first + count)
+  Vec3f axis{0, 0, 1};       ///< unit cone axis
+  float cos_half = -1.f;     ///< cone half-angle; cos_half <= 0 (a cone of 90 deg or wider): never culled
+  float sin_half = 1.f;
+  Vec3f center{0, 0, 0};  ///< bounding sphere of the triangles, metres
+  float radius = 0.f;
+};
+
+/// True if every triangle of the cluster faces away from a camera at `cam_obj` (object frame), with a
+/// margin that makes the verdict agree with the per-triangle float test (so culling never changes a
+/// render): every point p of the sphere and normal n of the cone satisfy n . (p - cam) > margin.
+PERCH2_HD inline bool cluster_faces_away(const TriangleCluster& c, Vec3f cam_obj) {
+  if (c.cos_half <= 0.f) return false;
+  const Vec3f v = c.center - cam_obj;
+  const float dist2 = dot(v, v), along = dot(c.axis, v);
+  const float across = sqrtf(max_f(dist2 - along * along, 0.f));
+  const float margin = 1e-5f * sqrtf(dist2) + 1e-6f;  // >> the float error of a posed triangle's offset
+  return along * c.cos_half - across * c.sin_half > c.radius + margin;
+}
+
 /// A model as the kernels see it: flat arrays (host or device memory) owned by the backend.
 struct MeshView {
   const Vec3f* vertices = nullptr;          ///< object frame, metres
@@ -33,7 +57,9 @@ struct MeshView {
   int num_vertices = 0, num_triangles = 0;
   int texture_width = 0, texture_height = 0;
   Rgb8 base_color{200, 200, 200};
-  Vec3f box_min{0, 0, 0}, box_max{0, 0, 0};  ///< object-frame bounds
+  Vec3f box_min{0, 0, 0}, box_max{0, 0, 0};   ///< object-frame bounds
+  const TriangleCluster* clusters = nullptr;  ///< null (no cluster culling), or num_clusters covering all
+  int num_clusters = 0;                       ///< triangles in order
 };
 
 /// Axis-aligned block of the stride grid: samples (i, j) with i0 <= i < i0 + width, j0 <= j < j0 + height.
@@ -135,20 +161,22 @@ struct TriangleRaster {
   GridRoi cover;
 };
 
-/// Lexicographic order of points: the canonical direction of an edge.
+/// Lexicographic order of points: the canonical direction of an edge. Branch-free: the comparison is data
+/// dependent and mispredicts half the time in a branchy form.
 PERCH2_HD inline bool lex_less(Vec3f p, Vec3f q) {
-  return p.x < q.x || (p.x == q.x && (p.y < q.y || (p.y == q.y && p.z < q.z)));
+  return (p.x < q.x) | ((p.x == q.x) & ((p.y < q.y) | ((p.y == q.y) & (p.z < q.z))));
 }
 
 /// Normal of the plane through the camera centre and edge (p, q), pointing to the left of p -> q seen from
 /// the camera (as p x q). Computed from the lexicographically smaller endpoint and the edge vector, so the
 /// reversed edge gives exactly the negated bits.
 PERCH2_HD inline Vec3f edge_plane(Vec3f p, Vec3f q) {
-  if (lex_less(q, p)) {
-    const Vec3f n = cross(q, p - q);
-    return {-n.x, -n.y, -n.z};
-  }
-  return cross(p, q - p);
+  const bool swap = lex_less(q, p);
+  const Vec3f lo{swap ? q.x : p.x, swap ? q.y : p.y, swap ? q.z : p.z};
+  const Vec3f hi{swap ? p.x : q.x, swap ? p.y : q.y, swap ? p.z : q.z};
+  const Vec3f n = cross(lo, hi - lo);
+  const float sign = swap ? -1.f : 1.f;
+  return sign * n;
 }
 
 /// The grid samples a projected vertex bounds from each side: i_lo = ceil((u - eps) / s), i_hi =
@@ -296,14 +324,17 @@ PERCH2_HD inline void pose_vertices(const MeshView& m, const Rigid3f& T_cam_obj,
   const Intrinsics K_local = K;
   const StrideGrid grid(K, stride);
   for (int k = begin; k < end; ++k) {
-    const Vec3f p = T * vertices[k];
-    p_cam[k] = p;
-    if (!(p.z >= near_m)) {
-      span[k] = GridSpan{kBehindNear, 0, 0, 0};
-      continue;
-    }
-    const float inv_z = 1.f / p.z;  // one division; spans are a superset filter with a 1e-3 px margin
-    span[k] = grid_span({K_local.fx * p.x * inv_z + K_local.cx, K_local.fy * p.y * inv_z + K_local.cy}, grid);
+    const Vec3f v = vertices[k];
+    // Component-wise stores: a Vec3f temporary went through the stack and stalled store forwarding.
+    const float x = T.R.m[0] * v.x + T.R.m[1] * v.y + T.R.m[2] * v.z + T.t.x;
+    const float y = T.R.m[3] * v.x + T.R.m[4] * v.y + T.R.m[5] * v.z + T.t.y;
+    const float z = T.R.m[6] * v.x + T.R.m[7] * v.y + T.R.m[8] * v.z + T.t.z;
+    p_cam[k].x = x, p_cam[k].y = y, p_cam[k].z = z;
+    // Branch-free: behind the near plane the span is computed from garbage (clamped, never UB) and marked.
+    const float inv_z = 1.f / z;  // one division; spans are a superset filter with a 1e-3 px margin
+    GridSpan s = grid_span({K_local.fx * x * inv_z + K_local.cx, K_local.fy * y * inv_z + K_local.cy}, grid);
+    s.i_lo = z >= near_m ? s.i_lo : kBehindNear;
+    span[k] = s;
   }
 }
 
@@ -312,9 +343,9 @@ PERCH2_HD inline void pose_vertices(const MeshView& m, const Rigid3f& T_cam_obj,
 /// 64-bit atomic min in the Thrust backend). Inputs are copied to locals so that plot's stores (an atomic is
 /// a compiler barrier) do not force reloads of the mesh, camera and ROI.
 template <class Plot>
-PERCH2_HD void rasterize_triangles(const MeshView& m, PosedVertices v, int begin, int end,
-                                   const Intrinsics& K, int stride, float near_m, const GridRoi& roi,
-                                   bool cull_back_faces, Plot&& plot) {
+PERCH2_HD void rasterize_triangle_run(const MeshView& m, PosedVertices v, int begin, int end,
+                                      const Intrinsics& K, int stride, float near_m, const GridRoi& roi,
+                                      bool cull_back_faces, Plot& plot) {
   const std::int32_t* const triangles = m.triangles;
   const Intrinsics K_local = K;
   const GridRoi roi_local = roi;
@@ -331,6 +362,41 @@ PERCH2_HD void rasterize_triangles(const MeshView& m, PosedVertices v, int begin
           plot((j - roi_local.j0) * roi_local.width + (i - roi_local.i0),
                pack_depth_triangle(depth_m, std::uint32_t(tri)));
       }
+  }
+}
+
+/// The camera centre in the object frame: -R^T t.
+PERCH2_HD inline Vec3f camera_in_object(const Rigid3f& T_cam_obj) {
+  const float* R = T_cam_obj.R.m;
+  const Vec3f t = T_cam_obj.t;
+  return {-(R[0] * t.x + R[3] * t.y + R[6] * t.z), -(R[1] * t.x + R[4] * t.y + R[7] * t.z),
+          -(R[2] * t.x + R[5] * t.y + R[8] * t.z)};
+}
+
+/// rasterize_triangle_run over [begin, end), skipping the model's clusters that face away from the camera
+/// as a whole when back faces are culled.
+template <class Plot>
+PERCH2_HD void rasterize_triangles(const MeshView& m, PosedVertices v, int begin, int end,
+                                   const Rigid3f& T_cam_obj, const Intrinsics& K, int stride, float near_m,
+                                   const GridRoi& roi, bool cull_back_faces, Plot&& plot) {
+  if (!cull_back_faces || !m.clusters) {
+    rasterize_triangle_run(m, v, begin, end, K, stride, near_m, roi, cull_back_faces, plot);
+    return;
+  }
+  const Vec3f cam_obj = camera_in_object(T_cam_obj);
+  int lo = 0, hi = m.num_clusters;  // first cluster that ends after `begin`
+  while (lo < hi) {
+    const int mid = (lo + hi) / 2;
+    if (m.clusters[mid].first + m.clusters[mid].count <= begin)
+      lo = mid + 1;
+    else
+      hi = mid;
+  }
+  for (int c = lo; c < m.num_clusters && m.clusters[c].first < end; ++c) {
+    const TriangleCluster cluster = m.clusters[c];
+    if (cluster_faces_away(cluster, cam_obj)) continue;
+    rasterize_triangle_run(m, v, max_int(begin, cluster.first), min_int(end, cluster.first + cluster.count),
+                           K, stride, near_m, roi, cull_back_faces, plot);
   }
 }
 
