@@ -1,6 +1,6 @@
 // Render throughput and peak memory: 2,000 poses of a ~10k-triangle mesh, 640x480, strides 1/4/8, per
 // backend.
-//   bench_render [--runs N] [--poses N] [--stride S] [--backend cpu|thrust_omp] [--model FILE --scale S]
+//   bench_render [--runs N] [--poses N] [--stride S] [--backend cpu|thrust_omp|cuda] [--model FILE --scale S]
 // Default mesh: a procedural 10,224-triangle lumpy sphere with vertex colours (always available); with
 // ../shared/data present the YCB banana (15,728 triangles, 4096^2 texture) is measured too.
 #include <omp.h>
@@ -14,6 +14,9 @@
 #include "bench_support.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#ifdef PERCH2_HAVE_CUDA
+#include "perch2/cuda/device.hpp"
+#endif
 #include "perch2/io/io.hpp"
 
 using namespace perch2;
@@ -98,6 +101,15 @@ void run(Mesh mesh, int num_poses, int runs) {
     measure<cpu::Renderer>("cpu", mesh, hyps, runs, reference);
   if (only_backend.empty() || only_backend == "thrust_omp")
     measure<thrust_omp::Backend::Renderer>("thrust_omp", mesh, hyps, runs, reference);
+#ifdef PERCH2_HAVE_CUDA
+  if (only_backend.empty() || only_backend == "cuda") {
+    // Asked in a child: CUDA must not be initialised in this process before measure() forks a child using it.
+    if (bench::in_child([] { return std::array<double, 2>{double(cuda::device_count()), 0}; })[0] > 0)
+      measure<cuda::Backend::Renderer>("cuda", mesh, hyps, runs, reference);
+    else
+      std::printf("| cuda       | skipped: %s |\n", cuda::device_summary().c_str());
+  }
+#endif
 }
 
 }  // namespace
