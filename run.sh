@@ -4,13 +4,24 @@
 #   ./run.sh test                         build and run every test (ctest)
 #   ./run.sh bench                        build and run the benchmarks (Release)
 #   ./run.sh cuda                         compile and link the nvcc backend (perch2::cuda); needs nvcc
+#   ./run.sh gpu                          nvcc build of everything; tests and benches include perch2::cuda
+#                                         (its instances skip, with the reason, when no GPU is visible)
+#   ./run.sh test-system-cccl             the tests, built against Debian's Thrust/CUB/libcu++ (not the toolkit's)
 #   ./run.sh asan                         run the tests under AddressSanitizer + UndefinedBehaviorSanitizer
 set -euo pipefail
 cd "$(dirname "$0")"
 
 DEPS=(cmake make g++ pkg-config libeigen3-dev libflann-dev liblz4-dev libopencv-dev libtinyobjloader-dev
       doctest-dev nlohmann-json3-dev)
+# Thrust/CUB/libcu++ for the CPU build of the Thrust backend: the CUDA toolkit ships them (CCCL); without a
+# toolkit CMake takes Debian's copies.
+SYSTEM_CCCL=(libthrust-dev libcub-dev libcu++-dev)
 JOBS=$(nproc)
+
+have_toolkit() {
+  command -v nvcc >/dev/null || [ -x /usr/local/cuda/bin/nvcc ] || [ -x "${CUDA_PATH:-/nonexistent}/bin/nvcc" ]
+}
+have_toolkit || DEPS+=("${SYSTEM_CCCL[@]}")
 
 install_deps() {
   local missing=()
@@ -44,10 +55,15 @@ bench_peers() {
   if [ -d "$dir/include" ]; then echo "$PWD/$dir/include"; fi
 }
 
+use_nvcc() {
+  command -v nvcc >/dev/null || export PATH=/usr/local/cuda/bin:$PATH
+  command -v nvcc >/dev/null || { echo "this command needs nvcc (the CUDA toolkit)" >&2; exit 1; }
+}
+
 build() {  # build DIR [cmake options...]
   local dir=$1
   shift
-  cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=Release "$@" >/dev/null
+  cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=Release "$@" | { grep '^-- perch2:' || true; }  # e.g. which CCCL
   cmake --build "$dir" -j"$JOBS"
 }
 
@@ -71,11 +87,30 @@ case "$cmd" in
     ;;
   cuda)
     install_deps
-    command -v nvcc >/dev/null || export PATH=/usr/local/cuda/bin:$PATH
+    use_nvcc
     build build-cuda -DPERCH2_WITH_CUDA=ON -DPERCH2_BUILD_TESTS=OFF -DPERCH2_BUILD_BENCH=OFF \
       -DPERCH2_BUILD_EXAMPLES=OFF
     test -f build-cuda/backends/cuda/libperch2_cuda.so || { echo "perch2::cuda was not built" >&2; exit 1; }
     echo "== perch2::cuda compiled and linked: build-cuda/backends/cuda/libperch2_cuda.so (no GPU here to run it)"
+    ;;
+  gpu)
+    install_deps
+    use_nvcc
+    build build-gpu -DPERCH2_WITH_CUDA=ON
+    test -f build-gpu/backends/cuda/libperch2_cuda.so || { echo "perch2::cuda was not built" >&2; exit 1; }
+    ctest --test-dir build-gpu --output-on-failure -j"$JOBS" "$@"
+    if nvidia-smi -L 2>/dev/null | grep -q '^GPU'; then
+      for b in build-gpu/bench/bench_*; do [ -x "$b" ] && "$b"; done
+    else
+      echo "== no GPU listed by nvidia-smi: benchmarks not run (the tests' perch2::cuda instances were skipped)"
+    fi
+    ;;
+  test-system-cccl)
+    DEPS+=("${SYSTEM_CCCL[@]}")
+    install_deps
+    build build-system-cccl -DPERCH2_WITH_CUDA=OFF -DPERCH2_FORCE_SYSTEM_CCCL=ON -DPERCH2_BUILD_BENCH=OFF \
+      -DPERCH2_BUILD_EXAMPLES=OFF
+    ctest --test-dir build-system-cccl --output-on-failure -j"$JOBS" "$@"
     ;;
   asan)
     install_deps
@@ -86,7 +121,7 @@ case "$cmd" in
       ctest --test-dir build-asan --output-on-failure -j"$JOBS" -E consumer "$@"
     ;;
   *)
-    sed -n '2,8p' "$0"
+    sed -n '2,11p' "$0"
     exit 2
     ;;
 esac

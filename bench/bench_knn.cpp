@@ -31,6 +31,9 @@
 
 #include "perch2/cpu/knn.hpp"
 #include "perch2/cuda/knn.hpp"
+#ifdef PERCH2_HAVE_CUDA
+#include "perch2/cuda/device.hpp"
+#endif
 #include "perch2/knn/knn.hpp"
 
 #ifdef PERCH2_HAVE_NANOFLANN
@@ -325,6 +328,16 @@ int main(int argc, char** argv) {
     std::printf("index build: FLANN kd-tree %.2f ms, thrust_omp (upload + grid) %.2f ms\n\n",
                 1e3 * t_flann_build, 1e3 * t_grid_build);
 #endif
+#ifdef PERCH2_HAVE_CUDA
+    std::unique_ptr<thrust_backend::KnnIndex<thrust_backend::CudaSystem>> gpu;
+    if (cuda::device_count() > 0) {
+      const double t_gpu_build =
+          time_median(runs, [&] {
+            gpu = std::make_unique<thrust_backend::KnnIndex<thrust_backend::CudaSystem>>(s.targets);
+          }).wall_s;
+      std::printf("index build: cuda (upload + grid) %.2f ms\n\n", 1e3 * t_gpu_build);
+    }
+#endif
     std::printf(
         "| k | backend | method | queries timed | wall s | queries/s | vs FLANN | CPU us/query | "
         "max abs(d2 - FLANN d2) |\n");
@@ -353,28 +366,38 @@ int main(int argc, char** argv) {
                     1e6 * t.cpu_s / double(s.queries.size()), double(max_err));
       }
 #endif
-      for (KnnMethod m : {KnnMethod::Auto, KnnMethod::Grid, KnnMethod::PerQuery, KnnMethod::BruteForce}) {
-        ks.method = m;
-        const bool scan = m == KnnMethod::PerQuery || m == KnnMethod::BruteForce;
-        if (scan && grid_only) continue;
-        const CloudBatch& q = scan ? subset : s.queries;
-        const std::vector<std::int32_t>& seg = scan ? subset_seg : s.segment;
-        const KnnResult& r0 = scan ? ref_sub : ref;
-        KnnResult r;
-        const Timing t = time_median(runs, [&] { r = thr->knn(q, seg, ks); });
-        float max_err = 0;
-        for (std::size_t i = 0; i < r.sq_distance_m2.size(); ++i)
-          max_err = std::max(max_err, std::abs(r.sq_distance_m2[i] - r0.sq_distance_m2[i]));
-        const double qps = double(q.size()) / t.wall_s;
-        const std::string label =
-            m == KnnMethod::Auto
-                ? std::string("auto -> ") +
-                      to_string(resolve_knn_method(ks, max_searched_segment(s.targets.offsets, q, seg)))
-                : std::string(to_string(m));
-        std::printf("| %d | thrust_omp | %s | %zu | %.4f | %.3g | %.2f | %.3f | %g |\n", k, label.c_str(),
-                    q.size(), t.wall_s, qps, qps / flann_qps, 1e6 * t.cpu_s / double(q.size()),
-                    double(max_err));
-      }
+      // One row per method for a Thrust backend's index.
+      auto thrust_rows = [&](const auto& index, const char* backend) {
+        for (KnnMethod m : {KnnMethod::Auto, KnnMethod::Grid, KnnMethod::PerQuery, KnnMethod::BruteForce}) {
+          ks.method = m;
+          const bool scan = m == KnnMethod::PerQuery || m == KnnMethod::BruteForce;
+          if (scan && grid_only) continue;
+          const CloudBatch& q = scan ? subset : s.queries;
+          const std::vector<std::int32_t>& seg = scan ? subset_seg : s.segment;
+          const KnnResult& r0 = scan ? ref_sub : ref;
+          KnnResult r;
+          const Timing t = time_median(runs, [&] { r = index.knn(q, seg, ks); });
+          float max_err = 0;
+          for (std::size_t i = 0; i < r.sq_distance_m2.size(); ++i)
+            max_err = std::max(max_err, std::abs(r.sq_distance_m2[i] - r0.sq_distance_m2[i]));
+          const double qps = double(q.size()) / t.wall_s;
+          const std::string label =
+              m == KnnMethod::Auto
+                  ? std::string("auto -> ") +
+                        to_string(resolve_knn_method(ks, max_searched_segment(s.targets.offsets, q, seg)))
+                  : std::string(to_string(m));
+          std::printf("| %d | %s | %s | %zu | %.4f | %.3g | %.2f | %.3f | %g |\n", k, backend, label.c_str(),
+                      q.size(), t.wall_s, qps, qps / flann_qps, 1e6 * t.cpu_s / double(q.size()),
+                      double(max_err));
+        }
+      };
+      thrust_rows(*thr, "thrust_omp");
+#ifdef PERCH2_HAVE_CUDA
+      if (gpu)
+        thrust_rows(*gpu, "cuda");
+      else
+        std::printf("| %d | cuda | skipped: %s | | | | | | |\n", k, cuda::device_summary().c_str());
+#endif
     }
   }
   return 0;

@@ -33,6 +33,9 @@
 #include "perch2/cpu/registration.hpp"
 #include "perch2/cpu/render.hpp"
 #include "perch2/cuda/backend.hpp"
+#ifdef PERCH2_HAVE_CUDA
+#include "perch2/cuda/device.hpp"
+#endif
 #include "perch2/io/mesh_io.hpp"
 
 #include <omp.h>
@@ -375,6 +378,17 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
       name = "perch2 cpu ICP", m = ours(cpu::Backend{}, false);
     else if (method == "omp_icp")
       name = "perch2 thrust_omp ICP", m = ours(thrust_omp::Backend{}, false);
+#ifdef PERCH2_HAVE_CUDA
+    else if (method == "cuda_gicp" || method == "cuda_icp") {
+      const bool gicp = method == "cuda_gicp";
+      name = gicp ? "perch2 cuda GICP" : "perch2 cuda ICP";
+      if (cuda::device_count() == 0) {
+        std::printf("| %-28s | skipped: %s |\n", name, cuda::device_summary().c_str());
+        return 0;
+      }
+      m = ours(cuda::Backend{}, gicp);
+    }
+#endif
     else {
       std::fprintf(stderr, "unknown method %s\n", method.c_str());
       return 2;
@@ -463,6 +477,9 @@ int main(int argc, char** argv) {
   run("small_gicp");  // the peer the ratio column refers to (PCL when small_gicp is not built)
   if (use_pcl) run("pcl");
   for (const char* m : {"cpu_gicp", "omp_gicp", "cpu_icp", "omp_icp"}) run(m);
+#ifdef PERCH2_HAVE_CUDA
+  for (const char* m : {"cuda_gicp", "cuda_icp"}) run(m);
+#endif
   std::printf(
       "\nRMS: nearest-neighbour distance of the aligned source to the target; disp: mean distance of the\n"
       "aligned source points from their ideal positions (the known perturbation undone); <1mm: share of\n"

@@ -1,6 +1,6 @@
 // Render throughput and peak memory: 2,000 poses of a ~10k-triangle mesh, 640x480, strides 1/4/8, per
 // backend.
-//   bench_render [--runs N] [--poses N] [--stride S] [--backend embree|cpu|thrust_omp]
+//   bench_render [--runs N] [--poses N] [--stride S] [--backend embree|cpu|thrust_omp|cuda]
 //                [--model FILE --scale S] [--load N]
 // --load N runs N busy processes alongside (a shared CPU); Embree (libembree-dev) is the peer when found.
 // Default mesh: a procedural 10,224-triangle lumpy sphere with vertex colours (always available); with
@@ -16,6 +16,9 @@
 #include "bench_support.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#ifdef PERCH2_HAVE_CUDA
+#include "perch2/cuda/device.hpp"
+#endif
 #include "perch2/io/io.hpp"
 #include "render_fixtures.hpp"
 #ifdef PERCH2_HAVE_EMBREE
@@ -88,6 +91,15 @@ void run(Mesh mesh, int num_poses, int runs) {
     measure<cpu::Renderer>("cpu", mesh, hyps, runs, reference);
   if (only_backend.empty() || only_backend == "thrust_omp")
     measure<thrust_omp::Backend::Renderer>("thrust_omp", mesh, hyps, runs, reference);
+#ifdef PERCH2_HAVE_CUDA
+  if (only_backend.empty() || only_backend == "cuda") {
+    // Asked in a child: CUDA must not be initialised in this process before measure() forks a child using it.
+    if (bench::in_child([] { return std::array<double, 2>{double(cuda::device_count()), 0}; })[0] > 0)
+      measure<cuda::Backend::Renderer>("cuda", mesh, hyps, runs, reference);
+    else
+      std::printf("| cuda       | skipped: %s |\n", cuda::device_summary().c_str());
+  }
+#endif
 }
 
 }  // namespace

@@ -11,8 +11,17 @@
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
 
-/// Every backend that runs on this machine; tests are parametrised over it with TEST_CASE_TEMPLATE.
-#define PERCH2_CPU_RUNNABLE_BACKENDS perch2::cpu::Backend, perch2::thrust_omp::Backend
+/// Every backend the tests compare; cross-backend tests are parametrised over it with TEST_CASE_TEMPLATE.
+/// Test binaries linked with perch2::cuda (an nvcc build, PERCH2_HAVE_CUDA) include it too; without a
+/// visible device its instances are skipped with the reason (doctest_main.cpp), so a GPU machine runs the
+/// whole comparison with `./run.sh gpu`.
+#ifdef PERCH2_HAVE_CUDA
+#define PERCH2_TEST_BACKENDS perch2::cpu::Backend, perch2::thrust_omp::Backend, perch2::cuda::Backend
+#else
+#define PERCH2_TEST_BACKENDS perch2::cpu::Backend, perch2::thrust_omp::Backend
+#endif
+/// The name the test files use (from when only CPU backends were instantiated): the same list.
+#define PERCH2_CPU_RUNNABLE_BACKENDS PERCH2_TEST_BACKENDS
 
 namespace perch2::test {
 
