@@ -1,8 +1,11 @@
 // Renders a box with both CPU-runnable backends through the installed package; exits non-zero on mismatch.
 #include <cstdio>
+#include <sstream>
 
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#include "perch2/dataset/results.hpp"
+#include "perch2/eval/metrics.hpp"
 
 int main() {
   perch2::Mesh box;
@@ -22,5 +25,9 @@ int main() {
   const auto a = perch2::cpu::Backend::Renderer({box}).render(hyps, K, settings);
   const auto b = perch2::thrust_omp::Backend::Renderer({box}).render(hyps, K, settings);
   std::printf("consumer: cpu %zu points, thrust_omp %zu points\n", a.size(), b.size());
-  return a.size() > 0 && a.z == b.z && a.pixel == b.pixel ? 0 : 1;
+  std::ostringstream csv;  // perch2::dataset and perch2::eval link too
+  perch2::dataset::write_results_csv(csv, {});
+  const bool eval_ok = csv.str() == std::string(perch2::dataset::kBopResultsHeader) + "\n" &&
+                       perch2::eval::auc_ycb({0.0}) == 1.0;
+  return a.size() > 0 && a.z == b.z && a.pixel == b.pixel && eval_ok ? 0 : 1;
 }

@@ -1,0 +1,201 @@
+#include "perch2/eval/metrics.hpp"
+
+#include <flann/flann.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace perch2::eval {
+
+namespace {
+using Tree = flann::KDTreeSingleIndex<flann::L2_Simple<float>>;
+constexpr double kInf = std::numeric_limits<double>::infinity();
+}  // namespace
+
+struct ModelPoints::Impl {
+  std::vector<Eigen::Vector3f> points;
+  std::vector<float> rows;
+  std::unique_ptr<Tree> tree;
+};
+
+ModelPoints::ModelPoints(std::vector<Eigen::Vector3f> points_m) : impl_(std::make_unique<Impl>()) {
+  if (points_m.empty()) throw InvalidInput("model points", "no points");
+  for (const auto& p : points_m)
+    if (!p.allFinite()) throw InvalidInput("model points", "non-finite point");
+  impl_->points = std::move(points_m);
+  impl_->rows.reserve(impl_->points.size() * 3);
+  for (const auto& p : impl_->points) impl_->rows.insert(impl_->rows.end(), {p.x(), p.y(), p.z()});
+  flann::Matrix<float> data(impl_->rows.data(), impl_->points.size(), 3);
+  impl_->tree = std::make_unique<Tree>(data, flann::KDTreeSingleIndexParams(10));
+  impl_->tree->buildIndex();
+}
+
+ModelPoints::~ModelPoints() = default;
+ModelPoints::ModelPoints(ModelPoints&&) noexcept = default;
+ModelPoints& ModelPoints::operator=(ModelPoints&&) noexcept = default;
+
+const std::vector<Eigen::Vector3f>& ModelPoints::points() const {
+  return impl_->points;
+}
+
+void ModelPoints::nearest_sq_distances(const std::vector<float>& xyz_rows, std::vector<float>& d2) const {
+  const std::size_t n = xyz_rows.size() / 3;
+  std::vector<std::size_t> idx(n);
+  d2.resize(n);
+  flann::SearchParams params;  // eps = 0: exact
+  params.cores = 1;            // callers parallelise over estimates
+  flann::Matrix<float> q(const_cast<float*>(xyz_rows.data()), n, 3);
+  flann::Matrix<std::size_t> im(idx.data(), n, 1);
+  flann::Matrix<float> dm(d2.data(), n, 1);
+  impl_->tree->knnSearch(q, im, dm, 1, params);
+}
+
+double add_error(const Pose& T_est, const Pose& T_gt, const std::vector<Eigen::Vector3f>& points_m) {
+  if (points_m.empty()) throw InvalidInput("ADD", "model has no points");
+  const Eigen::Isometry3d Te = T_est.cast<double>(), Tg = T_gt.cast<double>();
+  double sum = 0;
+  for (const auto& p : points_m) sum += (Te * p.cast<double>() - Tg * p.cast<double>()).norm();
+  return sum / double(points_m.size());
+}
+
+double adds_error(const Pose& T_est, const Pose& T_gt, const ModelPoints& model) {
+  // |T_gt x - T_est y| = |T_est^-1 T_gt x - y|: query the object-frame tree with T_est^-1 T_gt x.
+  const Eigen::Isometry3d T = T_est.cast<double>().inverse() * T_gt.cast<double>();
+  const auto& pts = model.points();
+  std::vector<float> rows(pts.size() * 3);
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    const Eigen::Vector3d q = T * pts[i].cast<double>();
+    rows[3 * i] = float(q.x()), rows[3 * i + 1] = float(q.y()), rows[3 * i + 2] = float(q.z());
+  }
+  std::vector<float> d2;
+  model.nearest_sq_distances(rows, d2);
+  double sum = 0;
+  for (const float d : d2) sum += std::sqrt(double(d));
+  return sum / double(pts.size());
+}
+
+std::vector<Pose> symmetry_transformations(const dataset::ModelInfo& info, double max_sym_disc_step) {
+  if (!(max_sym_disc_step > 0)) throw InvalidInput("max_sym_disc_step", "must be > 0");
+  std::vector<Pose> discrete{Pose::Identity()};
+  discrete.insert(discrete.end(), info.symmetries_discrete.begin(), info.symmetries_discrete.end());
+  std::vector<Pose> continuous;
+  // (pi * diameter) / (max_sym_disc_step * diameter) steps: the farthest vertex moves at most
+  // max_sym_disc_step * diameter between consecutive rotations (misc.get_symmetry_transformations).
+  for (const auto& c : info.symmetries_continuous) {
+    const int steps = int(std::ceil(M_PI / max_sym_disc_step));
+    for (int i = 0; i < steps; ++i) {
+      Pose S = Pose::Identity();
+      S.linear() =
+          Eigen::AngleAxisd(i * 2.0 * M_PI / steps, c.axis.cast<double>()).toRotationMatrix().cast<float>();
+      S.translation() = -(S.linear() * c.offset_m) + c.offset_m;  // rotation about the axis through offset
+      continuous.push_back(S);
+    }
+  }
+  if (continuous.empty()) return discrete;
+  std::vector<Pose> out;
+  for (const auto& D : discrete)
+    for (const auto& C : continuous) out.push_back(C * D);  // R = R_c R_d, t = R_c t_d + t_c
+  return out;
+}
+
+double mssd_error(const Pose& T_est, const Pose& T_gt, const std::vector<Eigen::Vector3f>& points_m,
+                  const std::vector<Pose>& symmetries) {
+  if (points_m.empty() || symmetries.empty()) throw InvalidInput("MSSD", "no points or no symmetries");
+  const Eigen::Isometry3d Te = T_est.cast<double>();
+  std::vector<Eigen::Vector3d> est(points_m.size());
+  for (std::size_t i = 0; i < points_m.size(); ++i) est[i] = Te * points_m[i].cast<double>();
+  double best = kInf;
+  for (const auto& S : symmetries) {
+    const Eigen::Isometry3d Tg = T_gt.cast<double>() * S.cast<double>();
+    double worst2 = 0;
+    for (std::size_t i = 0; i < points_m.size() && worst2 < best * best; ++i)
+      worst2 = std::max(worst2, (est[i] - Tg * points_m[i].cast<double>()).squaredNorm());
+    best = std::min(best, std::sqrt(worst2));  // early exit above only skips symmetries that cannot win
+  }
+  return best;
+}
+
+double mspd_error(const Pose& T_est, const Pose& T_gt, const Intrinsics& K,
+                  const std::vector<Eigen::Vector3f>& points_m, const std::vector<Pose>& symmetries) {
+  if (points_m.empty() || symmetries.empty()) throw InvalidInput("MSPD", "no points or no symmetries");
+  auto project = [&](const Eigen::Vector3d& p) {
+    return Eigen::Vector2d(K.fx * p.x() / p.z() + K.cx, K.fy * p.y() / p.z() + K.cy);
+  };
+  const Eigen::Isometry3d Te = T_est.cast<double>();
+  std::vector<Eigen::Vector2d> est(points_m.size());
+  for (std::size_t i = 0; i < points_m.size(); ++i) est[i] = project(Te * points_m[i].cast<double>());
+  double best = kInf;
+  for (const auto& S : symmetries) {
+    const Eigen::Isometry3d Tg = T_gt.cast<double>() * S.cast<double>();
+    double worst2 = 0;
+    for (std::size_t i = 0; i < points_m.size() && worst2 < best * best; ++i)
+      worst2 = std::max(worst2, (est[i] - project(Tg * points_m[i].cast<double>())).squaredNorm());
+    best = std::min(best, std::sqrt(worst2));
+  }
+  return best;
+}
+
+float depth_to_distance(const Intrinsics& K, int u, int v, float z_m) {
+  const double x = (u - double(K.cx)) / K.fx, y = (v - double(K.cy)) / K.fy;
+  return float(z_m * std::sqrt(x * x + y * y + 1.0));
+}
+
+std::vector<double> vsd_errors(const SparseDistance& est, const SparseDistance& gt,
+                               const DepthImage& depth_test_m, const Intrinsics& K, double delta_m,
+                               const std::vector<double>& taus, double diameter_m) {
+  check_size(depth_test_m, K.width, K.height, "VSD test depth");
+  if (!(diameter_m > 0)) throw InvalidInput("VSD", "diameter must be > 0");
+  // Merge the two sorted pixel lists; pixels rendered by neither model cannot be in the union.
+  std::size_t union_count = 0, inter_count = 0;
+  std::vector<double> inter_dists;  // |d_gt - d_est| / diameter on the visible intersection
+  std::size_t i = 0, j = 0;
+  while (i < est.pixel.size() || j < gt.pixel.size()) {
+    const std::int32_t pe = i < est.pixel.size() ? est.pixel[i] : std::numeric_limits<std::int32_t>::max();
+    const std::int32_t pg = j < gt.pixel.size() ? gt.pixel[j] : std::numeric_limits<std::int32_t>::max();
+    const std::int32_t p = std::min(pe, pg);
+    const float d_est = pe == p ? est.dist_m[i++] : 0.f;
+    const float d_gt = pg == p ? gt.dist_m[j++] : 0.f;
+    const int u = p % K.width, v = p / K.width;
+    const float z_test = depth_test_m.data[std::size_t(p)];
+    const double d_test = z_test > 0 ? depth_to_distance(K, u, v, z_test) : 0.0;
+    const bool vis_gt = d_gt > 0 && (d_test == 0 || d_gt - d_test <= delta_m);
+    const bool vis_est = d_est > 0 && ((d_test == 0 || d_est - d_test <= delta_m) || vis_gt);
+    if (vis_gt || vis_est) ++union_count;
+    if (vis_gt && vis_est) ++inter_count, inter_dists.push_back(std::abs(double(d_gt) - d_est) / diameter_m);
+  }
+  std::vector<double> out;
+  for (const double tau : taus) {
+    if (union_count == 0) {
+      out.push_back(1.0);
+      continue;
+    }
+    std::size_t cost = 0;
+    for (const double d : inter_dists) cost += d >= tau;
+    out.push_back(double(cost + (union_count - inter_count)) / double(union_count));
+  }
+  return out;
+}
+
+double auc_ycb(std::vector<double> errors_m, double max_m) {
+  // YCB-Video toolbox: D(D > max) = inf; d = sort(D); accuracy = (1:n)/n; VOCap(d, accuracy).
+  const std::size_t n = errors_m.size();
+  if (n == 0) return 0;
+  for (double& e : errors_m)
+    if (!(e <= max_m)) e = kInf;
+  std::sort(errors_m.begin(), errors_m.end());
+  // VOCap: keep finite entries; mrec = [0; rec; max], mpre = [0; prec; prec(end)]; running max of mpre;
+  // area = sum over changes of mrec of (mrec(i) - mrec(i-1)) * mpre(i), normalised by max.
+  std::vector<double> mrec{0.0}, mpre{0.0};
+  for (std::size_t k = 0; k < n && std::isfinite(errors_m[k]); ++k)
+    mrec.push_back(errors_m[k]), mpre.push_back(double(k + 1) / double(n));
+  if (mrec.size() == 1) return 0;  // every error is a failure (the toolbox's try/catch gives 0)
+  mrec.push_back(max_m), mpre.push_back(mpre.back());
+  for (std::size_t k = 1; k < mpre.size(); ++k) mpre[k] = std::max(mpre[k], mpre[k - 1]);
+  double area = 0;
+  for (std::size_t k = 1; k < mrec.size(); ++k)
+    if (mrec[k] != mrec[k - 1]) area += (mrec[k] - mrec[k - 1]) * mpre[k];
+  return area / max_m;
+}
+
+}  // namespace perch2::eval
