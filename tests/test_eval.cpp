@@ -239,7 +239,9 @@ TEST_CASE("A dropped estimate is a miss; a low-scored decoy is ignored; a high-s
     const EvalReport r = run(ests);
     CHECK(r.num_ignored_beyond_top_k == 1);
     CHECK(instance(r, 0, 3, 2).add_m == doctest::Approx(0.2).epsilon(1e-3));
+    CHECK(instance(r, 0, 3, 2).mssd_m == kInf);  // centres farther apart than the diameter (bop_toolkit)
     CHECK(r.per_object.at(3).ar == 0.0);
+    CHECK(r.per_object.at(3).ar_vsd == 0.0);
   }
 }
 
@@ -283,6 +285,13 @@ TEST_CASE("Bad results are rejected naming file and line") {
   save_results_csv(path, fixture().truth());
   const EvalReport r = evaluate(d, load_results_csv(path), {}, path);
   CHECK(r.overall.ar == doctest::Approx(1.0));
+}
+
+TEST_CASE("sphere_projections_overlap as bop_toolkit misc.overlapping_sphere_projections") {
+  // Centres at z = 1 m, 0.1 m apart sideways: projections 0.1 apart; threshold r (1/1 + 1/1) = 2r.
+  CHECK(sphere_projections_overlap(0.06, {0, 0, 1}, {0.1, 0, 1}));
+  CHECK_FALSE(sphere_projections_overlap(0.05, {0, 0, 1}, {0.1, 0, 1}));  // strict: 0.1 < 0.1 is false
+  CHECK_FALSE(sphere_projections_overlap(1.0, {0, 0, 0}, {0, 0, 1}));    // z = 0
 }
 
 TEST_CASE("VSD: identical renders score 0, disjoint ones 1, occluded pixels are not compared") {

@@ -209,9 +209,13 @@ ErrorTable error_table(const Context& c, const ObjectData& od, const dataset::Im
     const Pose& Tg = info.gt[gts[g]].T_cam_obj;
     t.add[p] = add_error(Te, Tg, pts);
     t.adds[p] = adds_error(Te, Tg, *od.points);
-    t.mssd[p] = mssd_error(Te, Tg, pts, od.symmetries);
+    // eval_calc_errors.py's shortcuts, kept so that the numbers match bop_toolkit's: MSSD = inf when the
+    // bounding spheres do not overlap, VSD = 1 when their projections do not.
+    const Eigen::Vector3d te = Te.translation().cast<double>(), tg = Tg.translation().cast<double>();
+    const double diameter = od.info.diameter_m;
+    t.mssd[p] = (te - tg).norm() < diameter ? mssd_error(Te, Tg, pts, od.symmetries) : kInf;
     t.mspd[p] = mspd_error(Te, Tg, K, pts, od.symmetries);
-    if (c.renderer) {
+    if (c.renderer && sphere_projections_overlap(0.5 * diameter, te, tg)) {
       const auto v = vsd_errors(est_render[e], gt_render[g], depth_test, K, c.settings.vsd_delta_m,
                                 c.settings.vsd_taus, od.info.diameter_m);
       std::copy(v.begin(), v.end(), t.vsd.begin() + std::ptrdiff_t(p * num_taus));

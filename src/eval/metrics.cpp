@@ -177,6 +177,12 @@ std::vector<double> vsd_errors(const SparseDistance& est, const SparseDistance& 
   return out;
 }
 
+bool sphere_projections_overlap(double radius_m, const Eigen::Vector3d& p1, const Eigen::Vector3d& p2) {
+  if (p1.z() == 0 || p2.z() == 0) return false;
+  const double proj_dist = ((p1 / p1.z()).head<2>() - (p2 / p2.z()).head<2>()).norm();
+  return proj_dist < radius_m * (1.0 / p1.z() + 1.0 / p2.z());
+}
+
 double auc_ycb(std::vector<double> errors_m, double max_m) {
   // YCB-Video toolbox: D(D > max) = inf; d = sort(D); accuracy = (1:n)/n; VOCap(d, accuracy).
   const std::size_t n = errors_m.size();

@@ -77,6 +77,12 @@ std::vector<double> vsd_errors(const SparseDistance& est, const SparseDistance& 
                                const DepthImage& depth_test_m, const Intrinsics& K, double delta_m,
                                const std::vector<double>& taus, double diameter_m);
 
+/// bop_toolkit misc.overlapping_sphere_projections(): whether the image projections of two spheres of
+/// radius_m centred at p1 and p2 (camera frame) overlap, approximated from the projected centres. BOP's
+/// eval_calc_errors.py gives VSD = 1 for every tau without rendering when they do not (and MSSD = inf when
+/// |t_est - t_gt| >= diameter); the evaluator does the same so that its numbers match bop_toolkit's.
+bool sphere_projections_overlap(double radius_m, const Eigen::Vector3d& p1, const Eigen::Vector3d& p2);
+
 /// Area under the accuracy-threshold curve over [0, max_m] exactly as the YCB-Video toolbox computes it
 /// (errors > max_m or non-finite are failures). Returns a fraction in [0, 1] (the toolbox prints x100);
 /// 0 for no errors.
