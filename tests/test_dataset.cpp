@@ -148,6 +148,27 @@ TEST_CASE("BopDataset::load_image: depth scale, planar depth, masks; image size 
   }
 }
 
+TEST_CASE("bop24 targets (images only) make every annotated object of the image a target") {
+  const std::string root = write_small_dataset("bop_t24");
+  fs::remove(root + "/test_targets_bop19.json");
+  test::write_text(root + "/test_targets_bop24.json", R"([{"im_id": 5, "scene_id": 2}])");
+  const BopDataset d(root);
+  CHECK(d.targets_path().find("bop24") != std::string::npos);
+  REQUIRE(d.targets().size() == 2);
+  CHECK(d.targets()[0].obj_id == 7);
+  CHECK(d.targets()[1].obj_id == 8);
+  CHECK(d.targets()[1].inst_count == 1);
+  test::write_text(root + "/test_targets_bop24.json", R"([{"im_id": 6, "scene_id": 2}])");
+  std::string e;
+  try {
+    BopDataset bad(root);
+  } catch (const FileError& err) {
+    e = err.what();
+  }
+  CHECK(e.find("test_targets_bop24.json") != std::string::npos);
+  CHECK(e.find("image 6") != std::string::npos);
+}
+
 TEST_CASE("BopDataset rejects missing and malformed files, naming them") {
   const std::string root = write_small_dataset("bop_bad");
   const std::string gt = root + "/test/000002/scene_gt.json";

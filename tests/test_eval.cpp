@@ -136,6 +136,30 @@ TEST_CASE("ADD-S with the kd-tree equals the brute-force definition") {
   CHECK(adds_error(Te, Tg, model) <= add_error(Te, Tg, blob.vertices));
 }
 
+TEST_CASE("ModelPoints: nearest distances equal brute force near, inside, far from and outside the model") {
+  std::mt19937 rng(5);
+  const Mesh blob = test::make_blob(rng, 0.05f, 16, 24);
+  const ModelPoints model(blob.vertices);
+  std::vector<float> rows;
+  std::normal_distribution<float> g(0.f, 1.f);
+  for (const float sigma : {0.001f, 0.01f, 0.03f, 0.2f})  // on the surface ... far outside the grid
+    for (int k = 0; k < 500; ++k) {
+      const Eigen::Vector3f& v = blob.vertices[std::size_t(k) % blob.vertices.size()];
+      rows.insert(rows.end(), {v.x() + sigma * g(rng), v.y() + sigma * g(rng), v.z() + sigma * g(rng)});
+    }
+  for (const auto& v : blob.vertices) rows.insert(rows.end(), {v.x(), v.y(), v.z()});  // exactly on points
+  std::vector<float> d2;
+  model.nearest_sq_distances(rows, d2);
+  int mismatches = 0;
+  for (std::size_t i = 0; i < d2.size(); ++i) {
+    float best = std::numeric_limits<float>::infinity();
+    const Eigen::Vector3f q(rows[3 * i], rows[3 * i + 1], rows[3 * i + 2]);
+    for (const auto& y : blob.vertices) best = std::min(best, (q - y).squaredNorm());
+    mismatches += std::abs(d2[i] - best) > 1e-6f * best + 1e-12f;
+  }
+  CHECK(mismatches == 0);
+}
+
 TEST_CASE("symmetry_transformations discretises continuous symmetries as bop_toolkit") {
   ModelInfo info;
   info.diameter_m = 0.1f;
@@ -291,7 +315,7 @@ TEST_CASE("sphere_projections_overlap as bop_toolkit misc.overlapping_sphere_pro
   // Centres at z = 1 m, 0.1 m apart sideways: projections 0.1 apart; threshold r (1/1 + 1/1) = 2r.
   CHECK(sphere_projections_overlap(0.06, {0, 0, 1}, {0.1, 0, 1}));
   CHECK_FALSE(sphere_projections_overlap(0.05, {0, 0, 1}, {0.1, 0, 1}));  // strict: 0.1 < 0.1 is false
-  CHECK_FALSE(sphere_projections_overlap(1.0, {0, 0, 0}, {0, 0, 1}));    // z = 0
+  CHECK_FALSE(sphere_projections_overlap(1.0, {0, 0, 0}, {0, 0, 1}));     // z = 0
 }
 
 TEST_CASE("VSD: identical renders score 0, disjoint ones 1, occluded pixels are not compared") {

@@ -11,12 +11,95 @@ namespace perch2::eval {
 namespace {
 using Tree = flann::KDTreeSingleIndex<flann::L2_Simple<float>>;
 constexpr double kInf = std::numeric_limits<double>::infinity();
+
+/// FLANN result set for one nearest neighbour without allocations (KNNSimpleResultSet allocates per query).
+struct Nearest : flann::ResultSet<float> {
+  float d2 = std::numeric_limits<float>::infinity();
+  bool full() const override { return true; }
+  void addPoint(float dist2, std::size_t) override { d2 = std::min(d2, dist2); }
+  float worstDist() const override { return d2; }
+};
 }  // namespace
 
+/// Exact nearest-point queries: a kd-tree (FLANN), and in front of it a grid of candidate lists covering the
+/// model's box plus a margin. Cell c (centre c, half-diagonal r) lists every model point y with
+/// |c - y| <= d_c + 2r, where d_c is the distance from c to the model. For a query q in the cell, the nearest
+/// point y* satisfies |q - y*| <= |q - NN(c)| <= d_c + r, so |c - y*| <= |c - q| + |q - y*| <= d_c + 2r:
+/// y* is in the list, and scanning the list is exact. Queries outside the grid, and in cells far from the
+/// surface whose lists would be long (kMaxCandidates), go to the kd-tree.
 struct ModelPoints::Impl {
   std::vector<Eigen::Vector3f> points;
   std::vector<float> rows;
   std::unique_ptr<Tree> tree;
+  Eigen::Vector3f origin = Eigen::Vector3f::Zero();
+  float cell = 0, inv_cell = 0;
+  int nx = 0, ny = 0, nz = 0;
+  std::vector<std::int32_t> cell_start;  // candidates of cell c: cand[cell_start[c] .. cell_start[c + 1])
+  std::vector<std::int32_t> cand;        // candidate point indices
+  std::vector<std::uint8_t> use_tree;    // per cell: the list would be longer than kMaxCandidates
+  static constexpr std::size_t kMaxCandidates = 128;
+
+  float tree_nearest_d2(const float* q) const {
+    Nearest result;
+    tree->findNeighbors(result, q, flann::SearchParams());  // eps = 0: exact
+    return result.d2;
+  }
+
+  void build_grid() {
+    Eigen::AlignedBox3f box;
+    for (const auto& p : points) box.extend(p);
+    const float size = std::max(box.diagonal().norm(), 1e-6f);
+    // ~25 cells along the diagonal and a margin of a tenth of it: candidate lists of a few dozen points
+    // near the surface, a few tens of thousands of cells per model.
+    cell = size / 40.f, inv_cell = 1.f / cell;
+    const Eigen::Vector3f margin = Eigen::Vector3f::Constant(0.1f * size);
+    origin = box.min() - margin;
+    const Eigen::Vector3f extent = box.max() + margin - origin;
+    nx = int(std::ceil(extent.x() * inv_cell)), ny = int(std::ceil(extent.y() * inv_cell));
+    nz = int(std::ceil(extent.z() * inv_cell));
+    const std::size_t cells = std::size_t(nx) * ny * nz;
+    const float half_diag = 0.5f * std::sqrt(3.f) * cell;
+    std::vector<std::vector<std::int32_t>> lists(cells);
+    use_tree.assign(cells, 0);
+#pragma omp parallel for schedule(dynamic, 64)
+    for (std::int64_t c = 0; c < std::int64_t(cells); ++c) {
+      const int x = int(c % nx), y = int((c / nx) % ny), z = int(c / (std::int64_t(nx) * ny));
+      const Eigen::Vector3f centre = origin + cell * Eigen::Vector3f(x + 0.5f, y + 0.5f, z + 0.5f);
+      const float d = std::sqrt(tree_nearest_d2(centre.data()));
+      // 1e-4 relative slack covers float rounding of distances and of the cell assignment.
+      const float radius = (d + 2 * half_diag) * 1.0001f + 1e-7f;
+      std::vector<std::vector<std::size_t>> idx;
+      std::vector<std::vector<float>> d2;
+      flann::Matrix<float> qm(const_cast<float*>(centre.data()), 1, 3);
+      flann::SearchParams params;
+      params.cores = 1;
+      tree->radiusSearch(qm, idx, d2, radius * radius, params);
+      if (idx[0].size() > kMaxCandidates) {
+        use_tree[std::size_t(c)] = 1;
+        continue;
+      }
+      for (const std::size_t i : idx[0]) lists[std::size_t(c)].push_back(std::int32_t(i));
+    }
+    cell_start.assign(cells + 1, 0);
+    for (std::size_t c = 0; c < cells; ++c) cell_start[c + 1] = cell_start[c] + std::int32_t(lists[c].size());
+    cand.reserve(std::size_t(cell_start.back()));
+    for (const auto& list : lists) cand.insert(cand.end(), list.begin(), list.end());
+  }
+
+  float nearest_d2(const float* q) const {
+    const float fx = (q[0] - origin.x()) * inv_cell, fy = (q[1] - origin.y()) * inv_cell,
+                fz = (q[2] - origin.z()) * inv_cell;
+    if (!(fx >= 0 && fy >= 0 && fz >= 0 && fx < nx && fy < ny && fz < nz)) return tree_nearest_d2(q);
+    const std::size_t c = (std::size_t(int(fz)) * ny + std::size_t(int(fy))) * nx + std::size_t(int(fx));
+    if (use_tree[c]) return tree_nearest_d2(q);
+    float best = std::numeric_limits<float>::infinity();
+    for (std::int32_t k = cell_start[c]; k < cell_start[c + 1]; ++k) {
+      const float* p = &rows[3 * std::size_t(cand[std::size_t(k)])];
+      const float dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
+      best = std::min(best, dx * dx + dy * dy + dz * dz);
+    }
+    return best;
+  }
 };
 
 ModelPoints::ModelPoints(std::vector<Eigen::Vector3f> points_m) : impl_(std::make_unique<Impl>()) {
@@ -29,6 +112,7 @@ ModelPoints::ModelPoints(std::vector<Eigen::Vector3f> points_m) : impl_(std::mak
   flann::Matrix<float> data(impl_->rows.data(), impl_->points.size(), 3);
   impl_->tree = std::make_unique<Tree>(data, flann::KDTreeSingleIndexParams(10));
   impl_->tree->buildIndex();
+  impl_->build_grid();
 }
 
 ModelPoints::~ModelPoints() = default;
@@ -41,14 +125,8 @@ const std::vector<Eigen::Vector3f>& ModelPoints::points() const {
 
 void ModelPoints::nearest_sq_distances(const std::vector<float>& xyz_rows, std::vector<float>& d2) const {
   const std::size_t n = xyz_rows.size() / 3;
-  std::vector<std::size_t> idx(n);
   d2.resize(n);
-  flann::SearchParams params;  // eps = 0: exact
-  params.cores = 1;            // callers parallelise over estimates
-  flann::Matrix<float> q(const_cast<float*>(xyz_rows.data()), n, 3);
-  flann::Matrix<std::size_t> im(idx.data(), n, 1);
-  flann::Matrix<float> dm(d2.data(), n, 1);
-  impl_->tree->knnSearch(q, im, dm, 1, params);
+  for (std::size_t i = 0; i < n; ++i) d2[i] = impl_->nearest_d2(&xyz_rows[3 * i]);
 }
 
 double add_error(const Pose& T_est, const Pose& T_gt, const std::vector<Eigen::Vector3f>& points_m) {

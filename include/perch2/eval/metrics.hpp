@@ -22,7 +22,11 @@
 
 namespace perch2::eval {
 
-/// A model's points (object frame, metres) with an exact kd-tree (FLANN) for nearest-point queries.
+/// A model's points (object frame, metres) for exact nearest-point queries: a grid of candidate lists over
+/// the model's box (plus 10% of its diagonal), built once, answers queries near the surface by scanning a
+/// few dozen points; the rest go to an exact FLANN kd-tree. About 4x faster than the kd-tree alone for
+/// estimates a few millimetres off, 1.3-1.6x for centimetres off; ~0.2 s CPU and ~8 MB per 3,000-point model
+/// to build.
 class ModelPoints {
  public:
   explicit ModelPoints(std::vector<Eigen::Vector3f> points_m);
