@@ -161,7 +161,8 @@ int main(int argc, char** argv) {
     }
   });
   std::printf(
-      "ADD-S, 1000 estimates x %zu model points: kd-tree %.1f ms wall (median of 5), %.0f ms CPU (one run, all "
+      "ADD-S, 1000 estimates x %zu model points: ModelPoints (candidate grid + kd-tree) %.1f ms wall (median "
+      "of 5), %.0f ms CPU (one run, all "
       "threads); O(n^2) %.0f ms wall (20 timed, x50); max |difference| %.2g m\n",
       model.vertices.size(), 1e3 * t_tree, 1e3 * cpu_tree, 1e3 * t_brute20 * 50, brute_check);
 

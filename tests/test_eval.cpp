@@ -3,6 +3,8 @@
 #include <limits>
 #include <random>
 
+#include <unistd.h>
+
 #include "bop_fixtures.hpp"
 #include "perch2/eval/evaluator.hpp"
 #include "perch2/eval/metrics.hpp"
@@ -41,7 +43,8 @@ struct Fixture {
   float block_diameter = 0, cylinder_diameter = 0;
 
   Fixture() {
-    root = test::temp_path("eval_fixture");
+    // One folder per process: ctest runs this file's test cases as separate processes in parallel.
+    root = test::temp_path("eval_fixture_" + std::to_string(::getpid()));
     FixtureObject block{1, test::make_box(0.08f, 0.05f, 0.03f)};
     block.diameter_m = block_diameter = diameter_of(block.mesh_m);
     auto sym = [](const Pose& R) {
@@ -71,6 +74,10 @@ struct Fixture {
                 {2, test::pose_at(0.05f, -0.05f, 0.6f)}}}};
     write_bop_dataset(root, {block, cylinder, blob}, images, K);
   }
+
+  ~Fixture() { std::filesystem::remove_all(root); }
+  Fixture(const Fixture&) = delete;
+  Fixture& operator=(const Fixture&) = delete;
 
   /// One estimate per GT instance at its true pose (score 1, time 0.5 s per image).
   std::vector<PoseEstimate> truth() const {
