@@ -217,6 +217,25 @@ TEST_CASE("A 5 mm translation gives ADD exactly 5 mm") {
   CHECK(r.per_object.at(1).ar_mspd == doctest::Approx((2.0 + 27.0) / 30.0));
 }
 
+TEST_CASE("1 cm too far along the viewing ray: VSD and MSSD fail exactly the taus / thresholds below 0.1") {
+  auto ests = fixture().truth();
+  const Eigen::Vector3f t = ests[0].T_cam_obj.translation();
+  ests[0].T_cam_obj = Eigen::Translation3f(0.01f * t.normalized()) * ests[0].T_cam_obj;  // block, image 0
+  const EvalReport r = run(ests);
+  const double d = fixture().block_diameter;
+  // MSSD = 1 cm = 0.101 of the diameter: wrong at thresholds 0.05 and 0.10, right at the other 8 of 10.
+  CHECK(instance(r, 0, 1, 0).mssd_m == doctest::Approx(0.01).epsilon(1e-3));
+  REQUIRE(0.01 / d > 0.10);
+  CHECK(r.per_object.at(1).ar_mssd == doctest::Approx((2 + 0.8) / 3));
+  // VSD: visible distances differ by 1.00-1.03 cm = 0.101-0.104 of the diameter, so every compared pixel
+  // costs 1 at tau 0.05 and 0.10 (error ~1: no threshold passes) and 0 at tau >= 0.15, where the error is the
+  // silhouette mismatch of a 2% change of scale (passes most thresholds). The instance's share of the 100
+  // tau x threshold pairs is therefore at most 80 and, with the mismatch below 0.1, at least 70.
+  const double ar = r.per_object.at(1).ar_vsd * 3 - 2;
+  CHECK(ar <= 0.8 + 1e-9);
+  CHECK(ar >= 0.7);
+}
+
 TEST_CASE("A rotationally symmetric shape turned about its axis: ADD-S ~ 0, ADD large, MSSD ~ 0") {
   auto ests = fixture().truth();
   ests[1].T_cam_obj = ests[1].T_cam_obj * rot({0, 0, 1}, kPi / 2);  // cylinder in image 0, 90 deg
