@@ -148,6 +148,17 @@ TEST_CASE("BopDataset::load_image: depth scale, planar depth, masks; image size 
   }
 }
 
+TEST_CASE("load_image reads gray/ when there is no rgb/ (grey cameras, e.g. ITODD)") {
+  const std::string root = write_small_dataset("bop_gray");
+  fs::remove_all(root + "/test/000002/rgb");
+  fs::create_directories(root + "/test/000002/gray");
+  LabelImage grey(4, 3, 77);
+  io::save_label_png(root + "/test/000002/gray/000005.png", grey);
+  const BopImage im = BopDataset(root).load_image(2, 5);
+  CHECK(im.frame.rgb(2, 1).r == 77);
+  CHECK(im.frame.rgb(2, 1).b == 77);
+}
+
 TEST_CASE("bop24 targets (images only) make every annotated object of the image a target") {
   const std::string root = write_small_dataset("bop_t24");
   fs::remove(root + "/test_targets_bop19.json");

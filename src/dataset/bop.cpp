@@ -41,11 +41,15 @@ bool png_size(const std::string& path, int& width, int& height) {
   return width > 0 && height > 0;
 }
 
+/// rgb/IM_ID.png or .jpg; datasets with grey cameras (ITODD) have gray/ instead (read as grey RGB).
 std::string rgb_path(const std::string& scene_dir, int im_id) {
-  const std::string stem = join(join(scene_dir, "rgb"), bop_id(im_id));
-  if (fs::exists(stem + ".png")) return stem + ".png";
-  if (fs::exists(stem + ".jpg")) return stem + ".jpg";
-  return stem + ".png";  // named in the error
+  for (const char* folder : {"rgb", "gray"}) {
+    const std::string stem = join(join(scene_dir, folder), bop_id(im_id));
+    if (fs::exists(stem + ".png")) return stem + ".png";
+    if (fs::exists(stem + ".jpg")) return stem + ".jpg";
+    if (fs::exists(stem + ".tif")) return stem + ".tif";
+  }
+  return join(join(scene_dir, "rgb"), bop_id(im_id)) + ".png";  // named in the error
 }
 
 std::string mask_path(const std::string& scene_dir, const char* folder, int im_id, int gt_id) {
