@@ -14,10 +14,12 @@ namespace {
 
 constexpr const char* kUsage =
     "usage: perch2 eval --dataset DIR --results FILE.csv [--split test] [--targets FILE] [--models DIR]\n"
-    "                   [--json OUT.json] [--no-vsd]\n"
+    "                   [--json OUT.json] [--no-vsd] [--vsd-delta-mm D]\n"
     "  DIR is a BOP dataset root (models/, SPLIT/, test_targets_bop19.json); FILE.csv holds BOP results\n"
     "  (scene_id,im_id,obj_id,score,R,t,time; t in mm). --models defaults to models_eval/ if present, else\n"
-    "  models/. --no-vsd skips VSD (no rendering, no depth reading): AR = mean(AR_MSSD, AR_MSPD).\n";
+    "  models/. --no-vsd skips VSD (no rendering, no depth reading): AR = mean(AR_MSSD, AR_MSPD).\n"
+    "  --vsd-delta-mm: VSD visibility tolerance (BOP: 15 mm; 5 mm for ITODD, chosen when DIR is named "
+    "itodd).\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 eval: " << message << "\n\n" << kUsage;
@@ -25,7 +27,7 @@ int usage_error(const std::string& message) {
 }
 
 int eval_command(int argc, char** argv) {
-  std::string dataset_dir, results, json_out;
+  std::string dataset_dir, results, json_out, delta_mm;
   perch2::dataset::DatasetOptions options;
   perch2::eval::EvalSettings settings;
   for (int k = 1; k < argc; ++k) {
@@ -39,17 +41,29 @@ int eval_command(int argc, char** argv) {
       std::cout << kUsage;
       return 0;
     }
-    const bool ok = a == "--dataset"   ? value(dataset_dir)
-                    : a == "--results" ? value(results)
-                    : a == "--json"    ? value(json_out)
-                    : a == "--split"   ? value(options.split)
-                    : a == "--targets" ? value(options.targets_file)
-                    : a == "--models"  ? value(options.models_dir)
-                    : a == "--no-vsd"  ? (settings.compute_vsd = false, true)
-                                       : (std::cerr << "perch2 eval: unknown argument " << a << "\n", false);
+    const bool ok = a == "--dataset"        ? value(dataset_dir)
+                    : a == "--results"      ? value(results)
+                    : a == "--json"         ? value(json_out)
+                    : a == "--split"        ? value(options.split)
+                    : a == "--targets"      ? value(options.targets_file)
+                    : a == "--models"       ? value(options.models_dir)
+                    : a == "--vsd-delta-mm" ? value(delta_mm)
+                    : a == "--no-vsd"       ? (settings.compute_vsd = false, true)
+                                      : (std::cerr << "perch2 eval: unknown argument " << a << "\n", false);
     if (!ok) return usage_error("bad or incomplete argument " + a);
   }
   if (dataset_dir.empty() || results.empty()) return usage_error("--dataset and --results are required");
+  std::filesystem::path dir = std::filesystem::path(dataset_dir).lexically_normal();
+  if (dir.filename().empty()) dir = dir.parent_path();  // "DIR/"
+  if (dir.filename() == "itodd")
+    settings.vsd_delta_m = 0.005;  // eval_bop19_pose.py vsd_deltas: 5 mm for ITODD, 15 mm otherwise
+  if (!delta_mm.empty()) {
+    try {
+      settings.vsd_delta_m = std::stod(delta_mm) * 1e-3;
+    } catch (const std::exception&) {
+      return usage_error("--vsd-delta-mm needs a number, got " + delta_mm);
+    }
+  }
   if (options.models_dir.empty() && std::filesystem::is_directory(dataset_dir + "/models_eval"))
     options.models_dir = "models_eval";  // bop_toolkit evaluates on the eval models when a dataset has them
 
