@@ -1,6 +1,7 @@
 // perch2 command-line tool.
 //   perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--stride N]
 //   perch2 render MODEL [--scale S] [--distance M] [--out DIR] [--backend ...]
+//   perch2 eval --dataset DIR --results FILE.csv [...]   (examples/cli/eval.cpp)
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -11,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "cli/commands.hpp"
 #include "demo_scene.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
@@ -32,7 +34,8 @@ struct Args {
                "  perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--stride N]\n"
                "      renders the built-in table scene and 3-DoF pose hypotheses; writes PNGs to DIR\n"
                "  perch2 render MODEL.{obj,ply} [--scale S] [--distance M] [--out DIR] [--backend ...]\n"
-               "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n";
+               "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n"
+               "  perch2 eval --dataset DIR --results FILE.csv [--json OUT] (perch2 eval --help for more)\n";
   std::exit(error.empty() ? 0 : 2);
 }
 
@@ -210,6 +213,7 @@ int run_render(const Args& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  if (argc > 1 && std::string(argv[1]) == "eval") return run_eval(argc - 1, argv + 1);
   const Args a = parse(argc, argv);
   try {
     if (a.command == "demo") return run_demo(a);

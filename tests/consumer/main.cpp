@@ -9,10 +9,13 @@
 #include <cstdint>
 #include <cstdio>
 #include <exception>
+#include <sstream>
 #include <vector>
 
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#include "perch2/dataset/results.hpp"
+#include "perch2/eval/metrics.hpp"
 
 namespace {
 
@@ -119,7 +122,12 @@ int main() {
                     check<perch2::thrust_omp::Backend>("thrust_omp", hyps, b, digest_b);
     const bool same = a.x == b.x && a.y == b.y && a.z == b.z && a.pixel == b.pixel && a.offsets == b.offsets;
     if (!same) std::printf("consumer: cpu and thrust_omp renders differ\n");
-    return ok && same ? 0 : 1;
+    std::ostringstream csv;  // perch2::dataset and perch2::eval link too
+    perch2::dataset::write_results_csv(csv, {});
+    const bool eval_ok = csv.str() == std::string(perch2::dataset::kBopResultsHeader) + "\n" &&
+                         perch2::eval::auc_ycb({0.0}) == 1.0;
+    if (!eval_ok) std::printf("consumer: perch2::dataset / perch2::eval gave unexpected results\n");
+    return ok && same && eval_ok ? 0 : 1;
   } catch (const std::exception& e) {
     std::printf("consumer: %s\n", e.what());
     return 1;

@@ -1,0 +1,150 @@
+// Reading datasets in BOP format
+// (https://github.com/thodan/bop_toolkit/blob/master/docs/bop_datasets_format.md).
+//
+//   ROOT/camera.json                       optional: fx, fy, cx, cy, width, height, depth_scale
+//   ROOT/models/obj_OBJ_ID.ply             models in millimetres (models_eval/ is preferred for evaluation)
+//   ROOT/models/models_info.json           {"OBJ_ID": {diameter (mm), symmetries_discrete [[16 numbers: 4x4
+//                                          row-major, translation in mm]], symmetries_continuous
+//                                          [{axis [3], offset [3] (mm)}], ...}}
+//   ROOT/test_targets_bop19.json           [{scene_id, im_id, obj_id, inst_count}]  (or _bop24: [{scene_id,
+//                                          im_id}], every annotated instance of the image is a target)
+//   ROOT/SPLIT/SCENE_ID/scene_camera.json  {"IM_ID": {cam_K [9, row-major], depth_scale (mm per unit),
+//                                          cam_R_w2c [9]?, cam_t_w2c [3] (mm)?}}
+//   ROOT/SPLIT/SCENE_ID/scene_gt.json      {"IM_ID": [{obj_id, cam_R_m2c [9], cam_t_m2c [3] (mm)}]}
+//   ROOT/SPLIT/SCENE_ID/scene_gt_info.json {"IM_ID": [{bbox_obj, bbox_visib, px_count_*, visib_fract}]}
+//   ROOT/SPLIT/SCENE_ID/rgb/IM_ID.{png,jpg}, depth/IM_ID.png (16-bit, value * depth_scale = mm, planar z),
+//                      mask/IM_ID_GT_ID.png, mask_visib/IM_ID_GT_ID.png   (ids zero-padded to 6 digits)
+//
+// Everything is converted to perch2's units on reading: metres, poses T_cam_obj (model -> camera) as Pose.
+// Opening a dataset parses the JSON files only; images are read one at a time by load_image().
+// Problems with a file raise perch2::FileError naming the file and what is wrong (with the JSON key).
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "perch2/core/camera.hpp"
+#include "perch2/core/image.hpp"
+#include "perch2/core/mesh.hpp"
+#include "perch2/core/pose.hpp"
+
+namespace perch2::dataset {
+
+using Mask = Image<std::uint8_t>;  ///< binary mask, 1 = inside, 0 = outside
+
+/// Continuous rotational symmetry about the line through offset_m along axis (object frame).
+struct ContinuousSymmetry {
+  Eigen::Vector3f axis = Eigen::Vector3f::UnitZ();  ///< unit vector
+  Eigen::Vector3f offset_m = Eigen::Vector3f::Zero();
+};
+
+/// One entry of models_info.json, in metres.
+struct ModelInfo {
+  int obj_id = 0;
+  float diameter_m = 0;  ///< largest distance between two model vertices
+  /// Discrete symmetries T_obj_obj' (the identity is not listed), translation in metres.
+  std::vector<Pose> symmetries_discrete;
+  std::vector<ContinuousSymmetry> symmetries_continuous;
+  bool is_symmetric() const { return !symmetries_discrete.empty() || !symmetries_continuous.empty(); }
+};
+
+/// One ground-truth instance from scene_gt.json (+ scene_gt_info.json when present).
+struct GtInstance {
+  int obj_id = 0;
+  Pose T_cam_obj = Pose::Identity();  ///< model -> camera, metres
+  bool has_info = false;              ///< scene_gt_info.json had an entry for it
+  float visib_fract = 1.f;            ///< visible fraction of the silhouette (1 without scene_gt_info)
+  Eigen::Vector4i bbox_obj{-1, -1, -1, -1}, bbox_visib{-1, -1, -1, -1};  ///< x, y, width, height, pixels
+  int px_count_all = 0, px_count_valid = 0, px_count_visib = 0;
+};
+
+/// Everything known about one image without reading its pixels.
+struct ImageInfo {
+  int scene_id = 0, im_id = 0;
+  Intrinsics camera;                ///< cam_K; width/height from camera.json or the first image of the scene
+  float depth_scale_mm = 1.f;       ///< millimetres per depth-PNG unit
+  std::optional<Pose> T_cam_world;  ///< from cam_R_w2c / cam_t_w2c when given (metres)
+  std::vector<GtInstance> gt;       ///< empty when the scene has no scene_gt.json
+};
+
+/// One target of the BOP challenge: inst_count instances of obj_id in an image.
+struct Target {
+  int scene_id = 0, im_id = 0, obj_id = 0, inst_count = 0;
+};
+
+/// Which parts of an image load_image() reads.
+struct ImageLoadOptions {
+  bool rgb = true;          ///< rgb/IM_ID.png or .jpg (missing file: FileError)
+  bool depth = true;        ///< depth/IM_ID.png -> metres
+  bool masks_visib = true;  ///< mask_visib/IM_ID_GT_ID.png for every GT instance
+  bool masks = false;       ///< mask/IM_ID_GT_ID.png (full silhouettes) for every GT instance
+};
+
+/// One image's pixels. frame.camera has the image size; frame.depth_m is planar z in metres (0 = none).
+struct BopImage {
+  ImageInfo info;
+  RgbdFrame frame;                ///< rgb may be empty (not requested); depth_m empty if not requested
+  std::vector<Mask> masks_visib;  ///< one per info.gt entry (if requested)
+  std::vector<Mask> masks;        ///< one per info.gt entry (if requested)
+  /// mask_visib as one label image: GT index + 1 where visible, 0 elsewhere (later instances win overlaps).
+  LabelImage visible_labels() const;
+};
+
+struct DatasetOptions {
+  std::string split = "test";  ///< folder of scenes under the root
+  /// Targets file under the root; "" = test_targets_bop19.json, else test_targets_bop24.json, else none.
+  std::string targets_file;
+  /// Folder of the models under the root; "" = "models".
+  std::string models_dir;
+};
+
+class BopDataset {
+ public:
+  /// Parses models_info.json, camera.json, the targets file and every scene's JSON files of the split.
+  explicit BopDataset(std::string root, DatasetOptions options = {});
+
+  const std::string& root() const { return root_; }
+  const std::string& split_path() const { return split_path_; }
+  const std::string& models_path() const { return models_path_; }
+
+  const std::map<int, ModelInfo>& models_info() const { return models_info_; }
+  /// models_info of obj_id; InvalidInput if the dataset has no such object.
+  const ModelInfo& model_info(int obj_id) const;
+  /// Path of obj_OBJ_ID.ply in the models folder (whether or not it exists).
+  std::string model_path(int obj_id) const;
+  /// Loads obj_OBJ_ID.ply, millimetres -> metres.
+  Mesh load_model(int obj_id) const;
+
+  /// Scene ids of the split, ascending.
+  std::vector<int> scene_ids() const;
+  /// Every (scene, image) of the split, in scene then image order.
+  std::vector<std::pair<int, int>> image_ids() const;
+  /// InvalidInput if the split has no such image.
+  const ImageInfo& info(int scene_id, int im_id) const;
+  bool has_image(int scene_id, int im_id) const;
+
+  /// Path of the targets file read ("" if none), and its targets (bop24: one per object of each image,
+  /// inst_count = the image's annotated instances of that object).
+  const std::string& targets_path() const { return targets_path_; }
+  const std::vector<Target>& targets() const { return targets_; }
+
+  /// Reads the requested images of one (scene, image). FileError names a missing or broken file.
+  BopImage load_image(int scene_id, int im_id, const ImageLoadOptions& options = {}) const;
+
+ private:
+  std::string root_, split_path_, models_path_, targets_path_;
+  std::map<int, ModelInfo> models_info_;
+  std::map<int, std::map<int, ImageInfo>> scenes_;
+  std::vector<Target> targets_;
+};
+
+/// Zero-padded 6-digit id, as BOP names folders and files ("000042").
+std::string bop_id(int id);
+
+/// Parses models_info.json (mm -> m). FileError naming the file and key on any problem.
+std::map<int, ModelInfo> load_models_info(const std::string& path);
+
+}  // namespace perch2::dataset

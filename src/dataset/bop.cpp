@@ -1,0 +1,375 @@
+#include "perch2/dataset/bop.hpp"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "json_util.hpp"
+#include "perch2/io/image_io.hpp"
+#include "perch2/io/mesh_io.hpp"
+
+namespace fs = std::filesystem;
+
+namespace perch2::dataset {
+
+using namespace detail;
+
+std::string bop_id(int id) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%06d", id);
+  return buf;
+}
+
+namespace {
+
+std::string join(const std::string& a, const std::string& b) {
+  return (fs::path(a) / b).string();
+}
+
+/// Width and height from a PNG's IHDR chunk (the first 24 bytes); false if the file is not a PNG.
+bool png_size(const std::string& path, int& width, int& height) {
+  std::ifstream f(path, std::ios::binary);
+  unsigned char b[24];
+  if (!f.read(reinterpret_cast<char*>(b), 24)) return false;
+  static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  for (int k = 0; k < 8; ++k)
+    if (b[k] != sig[k]) return false;
+  auto be32 = [&](int o) {
+    return int(b[o]) << 24 | int(b[o + 1]) << 16 | int(b[o + 2]) << 8 | int(b[o + 3]);
+  };
+  width = be32(16), height = be32(20);
+  return width > 0 && height > 0;
+}
+
+/// rgb/IM_ID.png or .jpg; datasets with grey cameras (ITODD) have gray/ instead (read as grey RGB).
+std::string rgb_path(const std::string& scene_dir, int im_id) {
+  for (const char* folder : {"rgb", "gray"}) {
+    const std::string stem = join(join(scene_dir, folder), bop_id(im_id));
+    if (fs::exists(stem + ".png")) return stem + ".png";
+    if (fs::exists(stem + ".jpg")) return stem + ".jpg";
+    if (fs::exists(stem + ".tif")) return stem + ".tif";
+  }
+  return join(join(scene_dir, "rgb"), bop_id(im_id)) + ".png";  // named in the error
+}
+
+std::string mask_path(const std::string& scene_dir, const char* folder, int im_id, int gt_id) {
+  return join(join(scene_dir, folder), bop_id(im_id) + "_" + bop_id(gt_id) + ".png");
+}
+
+Mask to_mask(const LabelImage& labels) {
+  Mask m(labels.width, labels.height, 0);
+  for (std::size_t k = 0; k < labels.data.size(); ++k) m.data[k] = labels.data[k] != 0;
+  return m;
+}
+
+struct CameraDefaults {
+  bool present = false;
+  Intrinsics K;
+  float depth_scale_mm = 1.f;
+};
+
+CameraDefaults load_camera_json(const std::string& path) {
+  CameraDefaults c;
+  if (!fs::exists(path)) return c;
+  const json j = read_json(path);
+  c.present = true;
+  c.K.fx = float(number(member(j, "fx", path, "camera"), path, "fx"));
+  c.K.fy = float(number(member(j, "fy", path, "camera"), path, "fy"));
+  c.K.cx = float(number(member(j, "cx", path, "camera"), path, "cx"));
+  c.K.cy = float(number(member(j, "cy", path, "camera"), path, "cy"));
+  c.K.width = integer(member(j, "width", path, "camera"), path, "width");
+  c.K.height = integer(member(j, "height", path, "camera"), path, "height");
+  if (j.contains("depth_scale")) c.depth_scale_mm = float(number(j["depth_scale"], path, "depth_scale"));
+  return c;
+}
+
+void parse_scene_camera(const std::string& path, int scene_id, const CameraDefaults& defaults,
+                        std::map<int, ImageInfo>& images) {
+  const json j = read_json(path);
+  if (!j.is_object()) throw FileError(path, "expected a JSON object keyed by image id");
+  for (const auto& [key, cam] : j.items()) {
+    const int im_id = key_id(key, path, "image key");
+    const std::string where = "image " + key;
+    ImageInfo info;
+    info.scene_id = scene_id, info.im_id = im_id;
+    const auto K = numbers(member(cam, "cam_K", path, where), 9, path, where + " cam_K");
+    info.camera = {float(K[0]), float(K[4]), float(K[2]), float(K[5]), defaults.K.width, defaults.K.height};
+    if (K[1] != 0 || K[3] != 0 || K[6] != 0 || K[7] != 0 || K[8] != 1)
+      throw FileError(path, where + " cam_K: expected [fx, 0, cx, 0, fy, cy, 0, 0, 1] (no skew)");
+    info.depth_scale_mm = defaults.depth_scale_mm;
+    if (cam.contains("depth_scale"))
+      info.depth_scale_mm = float(number(cam["depth_scale"], path, where + " depth_scale"));
+    if (!(info.depth_scale_mm > 0)) throw FileError(path, where + " depth_scale: must be > 0");
+    if (cam.contains("cam_R_w2c") || cam.contains("cam_t_w2c"))
+      info.T_cam_world = pose_from_bop(member(cam, "cam_R_w2c", path, where),
+                                       member(cam, "cam_t_w2c", path, where), path, where + " cam_*_w2c");
+    images[im_id] = std::move(info);
+  }
+}
+
+/// Calls fn(key, value, image) for every entry of a per-image JSON file of the scene (keys are image ids
+/// that scene_camera.json must list).
+template <class Fn>
+void for_each_image_entry(const std::string& path, std::map<int, ImageInfo>& images, Fn fn) {
+  const json j = read_json(path);
+  if (!j.is_object()) throw FileError(path, "expected a JSON object keyed by image id");
+  for (const auto& [key, value] : j.items()) {
+    const auto it = images.find(key_id(key, path, "image key"));
+    if (it == images.end()) throw FileError(path, "image " + key + " is not in scene_camera.json");
+    fn(key, value, it->second);
+  }
+}
+
+void parse_scene_gt(const std::string& path, const std::map<int, ModelInfo>& models,
+                    std::map<int, ImageInfo>& images) {
+  for_each_image_entry(path, images, [&](const std::string& key, const json& list, ImageInfo& info) {
+    if (!list.is_array()) throw FileError(path, "image " + key + ": expected a list of instances");
+    for (std::size_t g = 0; g < list.size(); ++g) {
+      const std::string where = "image " + key + " instance " + std::to_string(g);
+      GtInstance gt;
+      gt.obj_id = integer(member(list[g], "obj_id", path, where), path, where + " obj_id");
+      if (!models.count(gt.obj_id))
+        throw FileError(path,
+                        where + ": obj_id " + std::to_string(gt.obj_id) + " is not in models_info.json");
+      gt.T_cam_obj = pose_from_bop(member(list[g], "cam_R_m2c", path, where),
+                                   member(list[g], "cam_t_m2c", path, where), path, where + " cam_*_m2c");
+      info.gt.push_back(gt);
+    }
+  });
+}
+
+Eigen::Vector4i bbox(const json& j, const std::string& path, const std::string& where) {
+  const auto b = numbers(j, 4, path, where);
+  return {int(b[0]), int(b[1]), int(b[2]), int(b[3])};
+}
+
+void parse_scene_gt_info(const std::string& path, std::map<int, ImageInfo>& images) {
+  for_each_image_entry(path, images, [&](const std::string& key, const json& list, ImageInfo& info) {
+    if (!list.is_array() || list.size() != info.gt.size())
+      throw FileError(path, "image " + key + ": expected one entry per scene_gt.json instance (" +
+                                std::to_string(info.gt.size()) + ")");
+    for (std::size_t g = 0; g < list.size(); ++g) {
+      const std::string where = "image " + key + " instance " + std::to_string(g);
+      const json& e = list[g];
+      GtInstance& gt = info.gt[g];
+      gt.has_info = true;
+      gt.visib_fract = float(number(member(e, "visib_fract", path, where), path, where + " visib_fract"));
+      if (e.contains("bbox_obj")) gt.bbox_obj = bbox(e["bbox_obj"], path, where + " bbox_obj");
+      if (e.contains("bbox_visib")) gt.bbox_visib = bbox(e["bbox_visib"], path, where + " bbox_visib");
+      if (e.contains("px_count_all")) gt.px_count_all = integer(e["px_count_all"], path, where);
+      if (e.contains("px_count_valid")) gt.px_count_valid = integer(e["px_count_valid"], path, where);
+      if (e.contains("px_count_visib")) gt.px_count_visib = integer(e["px_count_visib"], path, where);
+    }
+  });
+}
+
+std::vector<Target> parse_targets(const std::string& path,
+                                  const std::map<int, std::map<int, ImageInfo>>& scenes) {
+  const json j = read_json(path);
+  if (!j.is_array()) throw FileError(path, "expected a JSON list of targets");
+  std::vector<Target> out;
+  for (std::size_t k = 0; k < j.size(); ++k) {
+    const std::string where = "target " + std::to_string(k);
+    Target t;
+    t.scene_id = integer(member(j[k], "scene_id", path, where), path, where + " scene_id");
+    t.im_id = integer(member(j[k], "im_id", path, where), path, where + " im_id");
+    const auto s = scenes.find(t.scene_id);
+    if (s == scenes.end() || !s->second.count(t.im_id))
+      throw FileError(path, where + ": scene " + std::to_string(t.scene_id) + " image " +
+                                std::to_string(t.im_id) + " is not in the split");
+    if (j[k].contains("obj_id")) {  // bop19: one object of the image
+      t.obj_id = integer(j[k]["obj_id"], path, where + " obj_id");
+      t.inst_count = integer(member(j[k], "inst_count", path, where), path, where + " inst_count");
+      if (t.inst_count < 1) throw FileError(path, where + " inst_count: must be >= 1");
+      out.push_back(t);
+    } else {  // bop24: every annotated object of the image
+      std::map<int, int> counts;
+      for (const auto& gt : s->second.at(t.im_id).gt) ++counts[gt.obj_id];
+      for (const auto& [obj, n] : counts) out.push_back({t.scene_id, t.im_id, obj, n});
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+std::map<int, ModelInfo> load_models_info(const std::string& path) {
+  const json j = read_json(path);
+  if (!j.is_object()) throw FileError(path, "expected a JSON object keyed by object id");
+  std::map<int, ModelInfo> out;
+  for (const auto& [key, m] : j.items()) {
+    const std::string where = "object " + key;
+    ModelInfo info;
+    info.obj_id = key_id(key, path, "object key");
+    info.diameter_m = float(number(member(m, "diameter", path, where), path, where + " diameter") * 1e-3);
+    if (!(info.diameter_m > 0)) throw FileError(path, where + " diameter: must be > 0");
+    if (m.contains("symmetries_discrete")) {
+      const json& list = m["symmetries_discrete"];
+      if (!list.is_array()) throw FileError(path, where + " symmetries_discrete: expected a list");
+      for (std::size_t s = 0; s < list.size(); ++s) {
+        const std::string w = where + " symmetries_discrete[" + std::to_string(s) + "]";
+        const auto v = numbers(list[s], 16, path, w);
+        if (v[12] != 0 || v[13] != 0 || v[14] != 0 || v[15] != 1)
+          throw FileError(path, w + ": the last row must be [0, 0, 0, 1]");
+        info.symmetries_discrete.push_back(pose_from_bop(
+            json{v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]}, json{v[3], v[7], v[11]}, path, w));
+      }
+    }
+    if (m.contains("symmetries_continuous")) {
+      const json& list = m["symmetries_continuous"];
+      if (!list.is_array()) throw FileError(path, where + " symmetries_continuous: expected a list");
+      for (std::size_t s = 0; s < list.size(); ++s) {
+        const std::string w = where + " symmetries_continuous[" + std::to_string(s) + "]";
+        const auto a = numbers(member(list[s], "axis", path, w), 3, path, w + " axis");
+        const auto o = numbers(member(list[s], "offset", path, w), 3, path, w + " offset");
+        ContinuousSymmetry c;
+        c.axis = Eigen::Vector3d(a[0], a[1], a[2]).cast<float>();
+        if (!(c.axis.norm() > 0)) throw FileError(path, w + " axis: must not be zero");
+        c.axis.normalize();
+        c.offset_m = Eigen::Vector3d(o[0] * 1e-3, o[1] * 1e-3, o[2] * 1e-3).cast<float>();
+        info.symmetries_continuous.push_back(c);
+      }
+    }
+    out[info.obj_id] = std::move(info);
+  }
+  return out;
+}
+
+LabelImage BopImage::visible_labels() const {
+  LabelImage out(frame.camera.width, frame.camera.height, 0);
+  for (std::size_t g = 0; g < masks_visib.size(); ++g) {
+    check_size(masks_visib[g], out.width, out.height, "mask_visib " + std::to_string(g));
+    for (std::size_t k = 0; k < out.data.size(); ++k)
+      if (masks_visib[g].data[k]) out.data[k] = std::int32_t(g + 1);
+  }
+  return out;
+}
+
+BopDataset::BopDataset(std::string root, DatasetOptions options) : root_(std::move(root)) {
+  if (!fs::is_directory(root_)) throw FileError(root_, "dataset root is not a folder");
+  split_path_ = join(root_, options.split);
+  if (!fs::is_directory(split_path_)) throw FileError(split_path_, "split folder not found");
+  models_path_ = join(root_, options.models_dir.empty() ? "models" : options.models_dir);
+  const std::string info_path = join(models_path_, "models_info.json");
+  models_info_ = load_models_info(info_path);
+  const CameraDefaults defaults = load_camera_json(join(root_, "camera.json"));
+
+  for (const auto& entry : fs::directory_iterator(split_path_)) {
+    if (!entry.is_directory()) continue;
+    const std::string name = entry.path().filename().string();
+    int scene_id = -1;
+    try {
+      std::size_t end = 0;
+      scene_id = std::stoi(name, &end);
+      if (end != name.size()) continue;
+    } catch (const std::exception&) {
+      continue;  // not a scene folder
+    }
+    const std::string dir = entry.path().string();
+    auto& images = scenes_[scene_id];
+    parse_scene_camera(join(dir, "scene_camera.json"), scene_id, defaults, images);
+    if (fs::exists(join(dir, "scene_gt.json")))
+      parse_scene_gt(join(dir, "scene_gt.json"), models_info_, images);
+    if (fs::exists(join(dir, "scene_gt_info.json")))
+      parse_scene_gt_info(join(dir, "scene_gt_info.json"), images);
+    if (!defaults.present && !images.empty()) {  // image size from the first image of the scene
+      const int im = images.begin()->first;
+      int w = 0, h = 0;
+      if (png_size(join(join(dir, "depth"), bop_id(im) + ".png"), w, h) || png_size(rgb_path(dir, im), w, h))
+        for (auto& [id, info] : images) info.camera.width = w, info.camera.height = h;
+    }
+  }
+  if (scenes_.empty()) throw FileError(split_path_, "no scene folders (000000, 000001, ...) found");
+
+  if (!options.targets_file.empty()) {
+    targets_path_ = join(root_, options.targets_file);
+    if (!fs::exists(targets_path_)) throw FileError(targets_path_, "targets file not found");
+  } else if (fs::exists(join(root_, "test_targets_bop19.json"))) {
+    targets_path_ = join(root_, "test_targets_bop19.json");
+  } else if (fs::exists(join(root_, "test_targets_bop24.json"))) {
+    targets_path_ = join(root_, "test_targets_bop24.json");
+  }
+  if (!targets_path_.empty()) targets_ = parse_targets(targets_path_, scenes_);
+}
+
+const ModelInfo& BopDataset::model_info(int obj_id) const {
+  const auto it = models_info_.find(obj_id);
+  if (it == models_info_.end())
+    throw InvalidInput("obj_id " + std::to_string(obj_id),
+                       "not in " + join(models_path_, "models_info.json"));
+  return it->second;
+}
+
+std::string BopDataset::model_path(int obj_id) const {
+  return join(models_path_, "obj_" + bop_id(obj_id) + ".ply");
+}
+
+Mesh BopDataset::load_model(int obj_id) const {
+  model_info(obj_id);
+  io::MeshLoadOptions o;
+  o.scale = 0.001f;  // BOP models are in millimetres
+  return io::load_mesh(model_path(obj_id), o);
+}
+
+std::vector<int> BopDataset::scene_ids() const {
+  std::vector<int> out;
+  for (const auto& s : scenes_) out.push_back(s.first);
+  return out;
+}
+
+std::vector<std::pair<int, int>> BopDataset::image_ids() const {
+  std::vector<std::pair<int, int>> out;
+  for (const auto& [s, images] : scenes_)
+    for (const auto& im : images) out.emplace_back(s, im.first);
+  return out;
+}
+
+bool BopDataset::has_image(int scene_id, int im_id) const {
+  const auto s = scenes_.find(scene_id);
+  return s != scenes_.end() && s->second.count(im_id);
+}
+
+const ImageInfo& BopDataset::info(int scene_id, int im_id) const {
+  if (!has_image(scene_id, im_id))
+    throw InvalidInput("scene " + std::to_string(scene_id) + " image " + std::to_string(im_id),
+                       "not in " + split_path_);
+  return scenes_.at(scene_id).at(im_id);
+}
+
+BopImage BopDataset::load_image(int scene_id, int im_id, const ImageLoadOptions& options) const {
+  BopImage out;
+  out.info = info(scene_id, im_id);
+  const std::string dir = join(split_path_, bop_id(scene_id));
+  out.frame.camera = out.info.camera;
+  auto take_size = [&](int w, int h, const std::string& path) {
+    if (out.frame.camera.width == 0 && out.frame.camera.height == 0)
+      out.frame.camera.width = w, out.frame.camera.height = h;
+    else if (out.frame.camera.width != w || out.frame.camera.height != h)
+      throw FileError(path, "image is " + std::to_string(w) + "x" + std::to_string(h) + ", the camera says " +
+                                std::to_string(out.frame.camera.width) + "x" +
+                                std::to_string(out.frame.camera.height));
+  };
+  if (options.depth) {
+    const std::string p = join(join(dir, "depth"), bop_id(im_id) + ".png");
+    out.frame.depth_m = io::load_depth_png(p, out.info.depth_scale_mm * 0.001f);
+    take_size(out.frame.depth_m.width, out.frame.depth_m.height, p);
+  }
+  if (options.rgb) {
+    const std::string p = rgb_path(dir, im_id);
+    out.frame.rgb = io::load_color_image(p);
+    take_size(out.frame.rgb.width, out.frame.rgb.height, p);
+  }
+  auto load_masks = [&](const char* folder, std::vector<Mask>& masks) {
+    for (std::size_t g = 0; g < out.info.gt.size(); ++g) {
+      const std::string p = mask_path(dir, folder, im_id, int(g));
+      masks.push_back(to_mask(io::load_label_png(p)));
+      take_size(masks.back().width, masks.back().height, p);
+    }
+  };
+  if (options.masks_visib) load_masks("mask_visib", out.masks_visib);
+  if (options.masks) load_masks("mask", out.masks);
+  out.info.camera = out.frame.camera;
+  return out;
+}
+
+}  // namespace perch2::dataset
