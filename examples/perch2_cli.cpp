@@ -1,6 +1,7 @@
 // perch2 command-line tool.
 //   perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--stride N]
 //   perch2 render MODEL [--scale S] [--distance M] [--out DIR] [--backend ...]
+//   perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S --out DIR
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -11,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "cli/commands.hpp"
 #include "demo_scene.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
@@ -32,7 +34,10 @@ struct Args {
                "  perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--stride N]\n"
                "      renders the built-in table scene and 3-DoF pose hypotheses; writes PNGs to DIR\n"
                "  perch2 render MODEL.{obj,ply} [--scale S] [--distance M] [--out DIR] [--backend ...]\n"
-               "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n";
+               "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n"
+               "  perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S "
+               "--out DIR\n"
+               "      writes a synthetic BOP dataset (built-in or DIR's models) with degraded detections\n";
   std::exit(error.empty() ? 0 : 2);
 }
 
@@ -210,6 +215,12 @@ int run_render(const Args& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  try {
+    if (argc > 1 && std::string(argv[1]) == "generate") return run_generate(argc, argv);
+  } catch (const std::exception& e) {
+    std::cerr << "perch2: " << e.what() << "\n";
+    return 1;
+  }
   const Args a = parse(argc, argv);
   try {
     if (a.command == "demo") return run_demo(a);

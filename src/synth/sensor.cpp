@@ -1,0 +1,384 @@
+#include "perch2/synth/sensor.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <opencv2/imgproc.hpp>
+
+#include "noise_field.hpp"
+#include "perch2/cpu/render.hpp"
+
+namespace perch2::synth {
+
+namespace {
+
+using Vec3 = Eigen::Vector3f;
+constexpr float kPi = 3.14159265358979f;
+
+float srgb_to_linear(float c) {
+  return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
+}
+float linear_to_srgb(float c) {
+  return c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.f / 2.4f) - 0.055f;
+}
+
+/// What an instance is: scene object k, distractor d, or environment.
+enum class Kind { Object, Distractor, Environment };
+
+struct Instance {
+  int mesh;  ///< albedo mesh index in the renderer; the normal mesh is mesh + num_meshes
+  Pose T_world_obj;
+  Material material;
+  Kind kind;
+  int index;  ///< k or d
+};
+
+/// Nearest-surface composite of some clouds of a batch.
+struct Composite {
+  std::vector<float> z;       ///< 0 = nothing
+  std::vector<int> instance;  ///< -1 = nothing
+  std::vector<Rgb8> colour;
+  Composite(int n) : z(std::size_t(n), 0.f), instance(std::size_t(n), -1), colour(std::size_t(n)) {}
+  void add(const CloudBatch& b, std::size_t cloud, int id) {
+    for (auto i = b.offsets[cloud]; i < b.offsets[cloud + 1]; ++i) {
+      const int p = b.pixel[i];
+      if (z[p] == 0.f || b.z[i] < z[p]) z[p] = b.z[i], instance[p] = id, colour[p] = unpack_rgb(b.rgb[i]);
+    }
+  }
+};
+
+Vec3 decode_normal(Rgb8 c) {
+  const Vec3 n(c.r / 127.5f - 1.f, c.g / 127.5f - 1.f, c.b / 127.5f - 1.f);
+  const float len = n.norm();
+  return len > 1e-3f ? Vec3(n / len) : Vec3(0, 0, -1);
+}
+
+}  // namespace
+
+void validate(const SensorSettings& s) {
+  s.camera.validate("SensorSettings::camera");
+  auto need = [](bool ok, const char* field, const char* why) {
+    if (!ok) throw InvalidInput(std::string("SensorSettings::") + field, why);
+  };
+  need(s.depth_noise_a_m >= 0 && s.depth_noise_b_per_m >= 0, "depth_noise_a_m", "noise terms must be >= 0");
+  need(s.depth_scale_mm > 0 && s.depth_scale_mm <= 10, "depth_scale_mm", "must be in (0, 10]");
+  need(s.min_range_m >= 0 && s.max_range_m > s.min_range_m, "min_range_m", "need 0 <= min < max");
+  need(s.max_range_m * 1000.f / s.depth_scale_mm <= 65535.f, "max_range_m",
+       "max range does not fit a 16-bit PNG at this depth_scale_mm");
+  need(s.edge_band_px >= 0, "edge_band_px", "must be >= 0");
+  need(s.grazing_cos_none > s.grazing_cos_full, "grazing_cos_none", "must exceed grazing_cos_full");
+  need(s.ambient_min >= 0 && s.ambient_max >= s.ambient_min, "ambient_min", "need 0 <= min <= max");
+  need(s.light_min_distance_m > 0 && s.light_max_distance_m >= s.light_min_distance_m, "light_min_distance_m",
+       "need 0 < min <= max");
+  need(s.blur_sigma_px >= 0 && s.shot_noise >= 0 && s.read_noise >= 0, "blur_sigma_px", "must be >= 0");
+}
+
+Mesh normal_mesh(const Mesh& mesh, float crease_rad) {
+  mesh.validate();
+  const std::size_t nt = mesh.triangles.size();
+  std::vector<Vec3> face_n(nt);  // area-weighted
+  for (std::size_t t = 0; t < nt; ++t) {
+    const auto& f = mesh.triangles[t];
+    face_n[t] = (mesh.vertices[f[1]] - mesh.vertices[f[0]]).cross(mesh.vertices[f[2]] - mesh.vertices[f[0]]);
+  }
+  // Corners grouped by position (texture seams duplicate vertices at one place).
+  std::map<std::array<std::int64_t, 3>, std::vector<std::size_t>> groups;
+  auto key = [&](const Vec3& v) {
+    return std::array<std::int64_t, 3>{std::llround(v.x() * 1e6), std::llround(v.y() * 1e6),
+                                       std::llround(v.z() * 1e6)};
+  };
+  for (std::size_t t = 0; t < nt; ++t)
+    for (int c = 0; c < 3; ++c) groups[key(mesh.vertices[mesh.triangles[t][c]])].push_back(t);
+  const float cos_crease = std::cos(crease_rad);
+  Mesh out;
+  out.name = mesh.name + "_normals";
+  for (std::size_t t = 0; t < nt; ++t) {
+    const Vec3 own = face_n[t].normalized();
+    for (int c = 0; c < 3; ++c) {
+      const Vec3& v = mesh.vertices[mesh.triangles[t][c]];
+      Vec3 n = Vec3::Zero();
+      for (std::size_t u : groups[key(v)])
+        if (face_n[u].normalized().dot(own) >= cos_crease) n += face_n[u];
+      n = n.norm() > 0 ? Vec3(n.normalized()) : own;
+      out.vertices.push_back(v);
+      auto enc = [](float x) { return std::uint8_t(std::clamp(std::lround((x + 1.f) * 127.5f), 0L, 255L)); };
+      out.vertex_colors.push_back({enc(n.x()), enc(n.y()), enc(n.z())});
+    }
+    out.triangles.emplace_back(int(3 * t), int(3 * t + 1), int(3 * t + 2));
+  }
+  return out;
+}
+
+struct SceneRenderer::Impl {
+  std::unique_ptr<cpu::Renderer> renderer;
+  std::vector<Instance> instances;
+  std::vector<Eigen::AlignedBox3f> object_boxes;  ///< per scene object, object frame
+  int num_meshes = 0, num_objects = 0;
+
+  /// Renders instances `ids` (albedo or normal meshes) from camera T_world_cam with intrinsics K.
+  CloudBatch render(const std::vector<int>& ids, bool normals, const Pose& T_world_cam,
+                    const Intrinsics& K) const {
+    const Pose T_cam_world = T_world_cam.inverse();
+    std::vector<Hypothesis> hyps;
+    for (int i : ids)
+      hyps.push_back(
+          {instances[i].mesh + (normals ? num_meshes : 0), T_cam_world * instances[i].T_world_obj});
+    RenderSettings rs;
+    rs.stride = 1;
+    return renderer->render(hyps, K, rs);
+  }
+};
+
+SceneRenderer::SceneRenderer(const std::vector<ObjectModel>& models, const Scene& scene)
+    : impl_(std::make_unique<Impl>()) {
+  std::vector<Mesh> meshes;
+  std::vector<Material> materials;
+  for (const auto& m : models) meshes.push_back(m.mesh), materials.push_back(m.material);
+  for (std::size_t k = 0; k < scene.objects.size(); ++k) {
+    const int m = scene.objects[k].model;
+    if (m < 0 || std::size_t(m) >= models.size())
+      throw InvalidInput("scene object " + std::to_string(k), "model index out of range");
+    impl_->instances.push_back({m, scene.objects[k].T_world_obj, models[m].material, Kind::Object, int(k)});
+    impl_->object_boxes.push_back(models[m].mesh.bounds());
+  }
+  auto add_props = [&](const std::vector<Prop>& props, Kind kind) {
+    for (std::size_t d = 0; d < props.size(); ++d) {
+      impl_->instances.push_back({int(meshes.size()), props[d].T_world_obj, props[d].material, kind, int(d)});
+      meshes.push_back(props[d].mesh);
+    }
+  };
+  add_props(scene.distractors, Kind::Distractor);
+  add_props(scene.environment, Kind::Environment);
+  impl_->num_meshes = int(meshes.size());
+  impl_->num_objects = int(scene.objects.size());
+  for (int i = 0, n = impl_->num_meshes; i < n; ++i) meshes.push_back(normal_mesh(meshes[i]));
+  impl_->renderer = std::make_unique<cpu::Renderer>(std::move(meshes));
+}
+
+SceneRenderer::~SceneRenderer() = default;
+SceneRenderer::SceneRenderer(SceneRenderer&&) noexcept = default;
+
+Frame SceneRenderer::render(const Pose& T_world_cam, const SensorSettings& s, Rng& rng) const {
+  validate(s);
+  if (!is_valid_pose(T_world_cam)) throw InvalidInput("T_world_cam", "is not a finite rigid transform");
+  const Impl& im = *impl_;
+  const Intrinsics& K = s.camera;
+  const int W = K.width, H = K.height, N = W * H;
+  const int num_inst = int(im.instances.size());
+  const Pose T_cam_world = T_world_cam.inverse();
+
+  // 1. Geometry, albedo and normals: every instance twice, composited by nearest depth.
+  std::vector<int> all(num_inst);
+  for (int i = 0; i < num_inst; ++i) all[i] = i;
+  const CloudBatch albedo = im.render(all, false, T_world_cam, K);
+  const CloudBatch normals = im.render(all, true, T_world_cam, K);
+  Composite scene(N), shading(N);
+  Frame f;
+  f.camera = K, f.T_world_cam = T_world_cam;
+  f.masks.assign(im.num_objects, MaskImage(W, H, 0));
+  for (int i = 0; i < num_inst; ++i) {
+    scene.add(albedo, i, i), shading.add(normals, i, i);
+    if (im.instances[i].kind == Kind::Object)
+      for (auto p = albedo.offsets[i]; p < albedo.offsets[i + 1]; ++p) f.masks[i].data[albedo.pixel[p]] = 255;
+  }
+  f.true_depth_m = DepthImage(W, H, 0.f);
+  f.visible = LabelImage(W, H, 0);
+  std::vector<Vec3> point(N, Vec3::Zero()), normal(N, Vec3(0, 0, -1));
+  for (int p = 0; p < N; ++p) {
+    const int i = scene.instance[p];
+    if (i < 0) continue;
+    f.true_depth_m.data[p] = scene.z[p];
+    const Instance& in = im.instances[i];
+    f.visible.data[p] = in.kind == Kind::Object       ? in.index + 1
+                        : in.kind == Kind::Distractor ? -(in.index + 1)
+                                                      : 0;
+    const Vec3f q = K.backproject(float(p % W), float(p / W), scene.z[p]);
+    point[p] = Vec3(q.x, q.y, q.z);
+    const int j = shading.instance[p] >= 0 ? shading.instance[p] : i;
+    const Eigen::Matrix3f R_cam_obj = T_cam_world.linear() * im.instances[j].T_world_obj.linear();
+    Vec3 n = R_cam_obj * decode_normal(shading.colour[p]);
+    if (n.dot(point[p]) > 0) n = -n;  // face the camera
+    normal[p] = n;
+  }
+
+  // 2. Silhouettes of truncated objects: counted on a canvas three times the image.
+  f.px_count_all.assign(im.num_objects, 0);
+  f.bbox_obj.assign(im.num_objects, {-1, -1, -1, -1});
+  std::vector<int> truncated;
+  for (int k = 0; k < im.num_objects; ++k) {
+    const Pose T = T_cam_world * im.instances[k].T_world_obj;
+    bool inside = true;
+    for (int c = 0; c < 8; ++c) {
+      const Vec3 v = T * im.object_boxes[k].corner(Eigen::AlignedBox3f::CornerType(c));
+      const float u = K.fx * v.x() / v.z() + K.cx, w = K.fy * v.y() / v.z() + K.cy;
+      inside = inside && v.z() > 0 && u >= 0 && w >= 0 && u <= W - 1 && w <= H - 1;
+    }
+    if (!inside) {
+      truncated.push_back(k);
+      continue;
+    }
+    int x0 = W, y0 = H, x1 = -1, y1 = -1;
+    for (int p = 0; p < N; ++p)
+      if (f.masks[k].data[p]) {
+        ++f.px_count_all[k];
+        x0 = std::min(x0, p % W), x1 = std::max(x1, p % W), y0 = std::min(y0, p / W),
+        y1 = std::max(y1, p / W);
+      }
+    if (x1 >= 0) f.bbox_obj[k] = {x0, y0, x1 - x0, y1 - y0};
+  }
+  if (!truncated.empty()) {
+    const Intrinsics big{K.fx, K.fy, K.cx + W, K.cy + H, 3 * W, 3 * H};
+    const CloudBatch c = im.render(truncated, false, T_world_cam, big);
+    for (std::size_t t = 0; t < truncated.size(); ++t) {
+      const int k = truncated[t];
+      int x0 = 1 << 30, y0 = 1 << 30, x1 = -(1 << 30), y1 = -(1 << 30);
+      f.px_count_all[k] = int(c.cloud_size(t));
+      for (auto i = c.offsets[t]; i < c.offsets[t + 1]; ++i) {
+        const int u = c.pixel[i] % big.width - W, v = c.pixel[i] / big.width - H;
+        x0 = std::min(x0, u), x1 = std::max(x1, u), y0 = std::min(y0, v), y1 = std::max(y1, v);
+      }
+      if (f.px_count_all[k] > 0) f.bbox_obj[k] = {x0, y0, x1 - x0, y1 - y0};
+    }
+  }
+
+  // 3. Key light (world), its shadow map over the objects and distractors, and the shading.
+  const float az = rng.uniform(0.f, 2 * kPi);
+  const float el = rng.uniform(s.light_min_elevation_rad, s.light_max_elevation_rad);
+  const float dist = rng.uniform(s.light_min_distance_m, s.light_max_distance_m);
+  const Vec3 light_world =
+      dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+  const float warmth = rng.uniform(-1.f, 1.f);
+  const Vec3 light_colour(1.f + 0.08f * warmth, 1.f, 1.f - 0.1f * warmth);
+  const float ambient = rng.uniform(s.ambient_min, s.ambient_max);
+  const Pose T_world_light = look_at(light_world, Vec3(0, 0, 0.05f));
+  const Pose T_light_cam = T_world_light.inverse() * T_world_cam;
+  const Intrinsics LK{0.f, 0.f, 383.5f, 383.5f, 768, 768};
+  Intrinsics light_K = LK;
+  light_K.fx = light_K.fy = 384.f * dist / 0.6f;  // covers +-0.6 m around the table centre
+  std::vector<int> casters;
+  for (int i = 0; i < num_inst; ++i)
+    if (im.instances[i].kind != Kind::Environment) casters.push_back(i);
+  Composite shadow_map(light_K.num_pixels());
+  if (!casters.empty()) {
+    const CloudBatch c = im.render(casters, false, T_world_light, light_K);
+    for (std::size_t t = 0; t < casters.size(); ++t) shadow_map.add(c, t, int(t));
+  }
+  auto lit_fraction = [&](const Vec3& p_cam, float bias) {
+    const Vec3 q = T_light_cam * p_cam;
+    if (q.z() <= 0) return 1.f;
+    const int u = int(std::lround(light_K.fx * q.x() / q.z() + light_K.cx));
+    const int v = int(std::lround(light_K.fy * q.y() / q.z() + light_K.cy));
+    int lit = 0, total = 0;
+    for (int dv = -1; dv <= 1; ++dv)
+      for (int du = -1; du <= 1; ++du, ++total) {
+        const int x = u + du, y = v + dv;
+        if (x < 0 || y < 0 || x >= light_K.width || y >= light_K.height) {
+          ++lit;
+          continue;
+        }
+        const float zs = shadow_map.z[std::size_t(y) * light_K.width + x];
+        lit += !(zs > 0 && zs < q.z() - bias);
+      }
+    return float(lit) / total;
+  };
+  const Vec3 light_cam = T_cam_world * light_world;
+  const Vec3 up_cam = T_cam_world.linear() * Vec3::UnitZ();
+  cv::Mat linear(H, W, CV_32FC3, cv::Scalar(0.015, 0.015, 0.018));
+  std::vector<float> highlight(N, 0.f);
+  float lut[256];
+  for (int c = 0; c < 256; ++c) lut[c] = srgb_to_linear(c / 255.f);
+  for (int p = 0; p < N; ++p) {
+    const int i = scene.instance[p];
+    if (i < 0) continue;
+    const Vec3 &P = point[p], &n = normal[p];
+    const Vec3 L = (light_cam - P).normalized(), V = -P.normalized();
+    const float ndl = std::max(0.f, n.dot(L));
+    const float vis = ndl > 0 ? lit_fraction(P, s.shadow_bias_m + 0.01f * (1.f - ndl)) : 0.f;
+    const Material& mat = im.instances[i].material;
+    const float spec =
+        ndl > 0 ? mat.specular * std::pow(std::max(0.f, n.dot((L + V).normalized())), mat.shininess) : 0.f;
+    const float amb = ambient * (0.7f + 0.3f * std::max(0.f, n.dot(up_cam)));
+    const Rgb8 a = scene.colour[p];
+    const Vec3 albedo_lin(lut[a.r], lut[a.g], lut[a.b]);
+    const Vec3 c =
+        albedo_lin * amb + (albedo_lin * ndl + Vec3::Constant(spec)).cwiseProduct(light_colour) * vis;
+    highlight[p] = spec * vis;
+    linear.at<cv::Vec3f>(p / W, p % W) = {c.x(), c.y(), c.z()};
+  }
+
+  // 4. The camera: auto exposure with jitter, white balance, vignetting, blur, shot and read noise, sRGB.
+  const cv::Scalar mean = cv::mean(linear);
+  const float luminance = float(0.2126 * mean[0] + 0.7152 * mean[1] + 0.0722 * mean[2]);
+  const float gain =
+      0.2f / std::max(luminance, 1e-4f) * (1.f + rng.uniform(-s.exposure_jitter, s.exposure_jitter));
+  const Vec3 wb(1.f + rng.uniform(-s.white_balance_jitter, s.white_balance_jitter), 1.f,
+                1.f + rng.uniform(-s.white_balance_jitter, s.white_balance_jitter));
+  if (s.blur_sigma_px > 0) cv::GaussianBlur(linear, linear, {0, 0}, s.blur_sigma_px);
+  f.rgb = ColorImage(W, H);
+  const float r_max2 = float(W * W + H * H) / 4.f;
+  for (int p = 0; p < N; ++p) {
+    const int u = p % W, v = p / W;
+    const float r2 = (float(u - W / 2) * (u - W / 2) + float(v - H / 2) * (v - H / 2)) / r_max2;
+    const cv::Vec3f c = linear.at<cv::Vec3f>(v, u);
+    std::uint8_t out[3];
+    for (int ch = 0; ch < 3; ++ch) {
+      float x = c[ch] * gain * wb[ch] * (1.f - s.vignetting * r2);
+      x += std::sqrt(s.shot_noise * s.shot_noise * std::max(x, 0.f) + s.read_noise * s.read_noise) *
+           rng.normal();
+      out[ch] = std::uint8_t(std::lround(255.f * linear_to_srgb(std::clamp(x, 0.f, 1.f))));
+    }
+    f.rgb.data[p] = {out[0], out[1], out[2]};
+  }
+
+  // 5. Depth: missing readings (edges, grazing angles, projector shadows, highlights, range), noise,
+  // quantisation.
+  const std::vector<float>& z = scene.z;
+  cv::Mat edge(H, W, CV_8U, cv::Scalar(0));
+  for (int v = 0; v < H; ++v)
+    for (int u = 0; u < W; ++u) {
+      const float a = z[v * W + u];
+      auto jump = [&](int x, int y) {
+        if (x < 0 || y < 0 || x >= W || y >= H) return false;
+        const float b = z[y * W + x];
+        return (a > 0) != (b > 0) || std::abs(a - b) > s.edge_jump_m;
+      };
+      if (jump(u + 1, v) || jump(u, v + 1)) edge.at<uchar>(v, u) = 255;
+    }
+  const int band = s.edge_band_px + rng.integer(0, 1);
+  if (band > 0)
+    cv::dilate(edge, edge, cv::getStructuringElement(cv::MORPH_ELLIPSE, {2 * band + 1, 2 * band + 1}));
+  const cv::Mat blotches = detail::smooth_noise(W, H, 6, rng);
+  std::vector<char> shadowed(N, 0);
+  const float shift = K.fx * s.projector_baseline_m;  // disparity * depth, pixel metres
+  for (int v = 0; v < H; ++v) {
+    float running_min = 1e30f;
+    for (int u = W - 1; u >= 0; --u) {
+      const float d = z[v * W + u];
+      if (d <= 0) continue;
+      const float up = float(u) - shift / d;  // the column the projector lights this point from
+      if (up >= running_min) shadowed[v * W + u] = 1;
+      running_min = std::min(running_min, up);
+    }
+  }
+  f.depth_m = DepthImage(W, H, 0.f);
+  const float unit_m = 0.001f * s.depth_scale_mm;
+  for (int p = 0; p < N; ++p) {
+    const float d = z[p];
+    const float r_drop = float(rng.uniform()),
+                r_noise = rng.normal();  // drawn for every pixel: stable streams
+    if (d <= 0 || d < s.min_range_m || d > s.max_range_m || shadowed[p]) continue;
+    if (edge.data[p] && blotches.at<float>(p / W, p % W) < s.edge_dropout) continue;
+    const float cos_view = std::abs(normal[p].dot(point[p].normalized()));
+    const float grazing =
+        std::clamp((s.grazing_cos_none - cos_view) / (s.grazing_cos_none - s.grazing_cos_full), 0.f, 1.f);
+    if (r_drop < grazing) continue;
+    if (highlight[p] * gain > 0.8f && r_drop < s.specular_dropout) continue;
+    if (r_drop > 1.f - s.random_dropout) continue;
+    const float sigma =
+        s.depth_noise_a_m + s.depth_noise_b_per_m * (d - s.depth_noise_z0_m) * (d - s.depth_noise_z0_m);
+    f.depth_m.data[p] = std::max(0.f, std::round((d + sigma * r_noise) / unit_m)) * unit_m;
+  }
+  return f;
+}
+
+}  // namespace perch2::synth
