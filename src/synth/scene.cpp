@@ -98,6 +98,12 @@ class HeightMap {
     return true;
   }
 
+  /// Height of the map under (x, y); -inf off the table.
+  float at(float x, float y) const {
+    int i, j;
+    return cell(x, y, i, j) ? z_[std::size_t(j) * nx_ + i] : -1e30f;
+  }
+
   /// Raises the map under the points (world coordinates), one cell around each for a conservative cover.
   void add(const std::vector<Vec3>& pts) {
     for (const auto& p : pts) {
@@ -124,7 +130,7 @@ class HeightMap {
 };
 
 /// A resting orientation: which object axis points down, a lean, and a yaw about world z.
-Eigen::Matrix3f rest_rotation(const SceneSettings& s, Rng& rng, bool upright_only) {
+Eigen::Matrix3f rest_rotation(const SceneSettings& s, Rng& rng, bool upright_only, bool& leaning) {
   Eigen::Matrix3f R_face = Eigen::Matrix3f::Identity();
   if (!upright_only) {
     const float r = float(rng.uniform());
@@ -138,13 +144,30 @@ Eigen::Matrix3f rest_rotation(const SceneSettings& s, Rng& rng, bool upright_onl
     }
   }
   Eigen::Matrix3f R_lean = Eigen::Matrix3f::Identity();
-  if (!upright_only && rng.chance(s.lean_probability)) {
+  leaning = !upright_only && rng.chance(s.lean_probability);
+  if (leaning) {
     const float axis_angle = rng.uniform(0.f, 2 * kPi), tilt = rng.uniform(s.lean_min_rad, s.lean_max_rad);
     R_lean =
         Eigen::AngleAxisf(tilt, Vec3(std::cos(axis_angle), std::sin(axis_angle), 0.f)).toRotationMatrix();
   }
   const float yaw = rng.uniform(0.f, 2 * kPi);
   return Eigen::AngleAxisf(yaw, Vec3::UnitZ()).toRotationMatrix() * R_lean * R_face;
+}
+
+/// Static stability without physics: the object's centre (of its surface samples) must lie over the convex
+/// hull of the points that touch what is below (within `contact_m`). Leaning objects pass when they touch
+/// both the table and a neighbour.
+bool is_stable(const std::vector<Vec3>& pts, const HeightMap& height, float contact_m) {
+  std::vector<cv::Point2f> contacts, hull;
+  Vec3 centre = Vec3::Zero();
+  for (const auto& p : pts) {
+    centre += p;
+    if (p.z() - height.at(p.x(), p.y()) < contact_m) contacts.emplace_back(p.x(), p.y());
+  }
+  centre /= float(pts.size());
+  if (contacts.size() < 3) return false;
+  cv::convexHull(contacts, hull);
+  return cv::pointPolygonTest(hull, cv::Point2f(centre.x(), centre.y()), true) >= -0.5 * contact_m;
 }
 
 /// A random point in the placement disc.
@@ -355,12 +378,16 @@ Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings&
   for (const Item& it : items) {
     const std::vector<Vec3> samples = sample_surface(*it.mesh, 1.5f * s.height_cell_m);
     for (int attempt = 0; attempt < s.placement_attempts; ++attempt) {
-      const Eigen::Matrix3f R = rest_rotation(s, rng, it.model < 0);
+      bool leaning = false;
+      const Eigen::Matrix3f R = rest_rotation(s, rng, it.model < 0, leaning);
       Vec2 xy = random_in_disc(s.placement_radius_m, rng);
-      if (!centres.empty() && rng.chance(s.stack_probability)) {
-        const Vec2 base = centres[rng.integer(0, int(centres.size()) - 1)];
+      const float r_stack = float(rng.uniform()), a = rng.uniform(0.f, 2 * kPi),
+                  d = rng.uniform(0.02f, 0.09f);
+      const Vec2 base = centres.empty() ? xy : centres[rng.integer(0, int(centres.size()) - 1)];
+      if (!centres.empty() && leaning)  // lean against a neighbour
+        xy = base + d * Vec2(std::cos(a), std::sin(a));
+      else if (!centres.empty() && r_stack < s.stack_probability)  // on top of it
         xy = base + Vec2(0.015f * rng.normal(), 0.015f * rng.normal());
-      }
       std::vector<Vec3> pts;
       pts.reserve(samples.size());
       for (const auto& p : samples) pts.push_back(R * p + Vec3(xy.x(), xy.y(), 0.f));
@@ -369,7 +396,7 @@ Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings&
       z += s.clearance_m;
       float top = -1e30f;
       for (auto& p : pts) p.z() += z, top = std::max(top, p.z());
-      if (top > s.max_stack_height_m) continue;
+      if (top > s.max_stack_height_m || !is_stable(pts, height, s.contact_m)) continue;
       height.add(pts);
       centres.push_back(xy);
       accept(it, make_pose(R, Vec3(xy.x(), xy.y(), z)));

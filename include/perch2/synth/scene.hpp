@@ -14,7 +14,7 @@ namespace perch2::synth {
 
 enum class Mode {
   ThreeDof,  ///< objects upright on the table at random (x, y, yaw), not touching
-  SixDof,    ///< any stable face down, some leaning, some on top of others
+  SixDof,    ///< statically stable resting poses: any face down, leaning on neighbours, stacked
 };
 
 struct SceneSettings {
@@ -34,6 +34,9 @@ struct SceneSettings {
   float max_stack_height_m = 0.3f;  ///< objects would rest higher than this: retried
   float height_cell_m = 0.002f;     ///< 6-DoF drop height map resolution, metres
   float clearance_m = 0.001f;       ///< 6-DoF: gap left above the surface an object is dropped on
+  /// 6-DoF: points this close to what lies below support the object; a resting pose is kept only if the
+  /// object's centre lies over the hull of its support points (static stability), metres.
+  float contact_m = 0.004f;
   // Table and room.
   float table_size_x_m = 1.4f, table_size_y_m = 1.0f, table_thickness_m = 0.03f;
   float room_size_m = 4.f, floor_z_m = -0.75f, wall_height_m = 2.6f;
