@@ -3,6 +3,7 @@
 
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#include "perch2/synth/models.hpp"
 
 int main() {
   perch2::Mesh box;
@@ -21,6 +22,8 @@ int main() {
   const perch2::RenderSettings settings;
   const auto a = perch2::cpu::Backend::Renderer({box}).render(hyps, K, settings);
   const auto b = perch2::thrust_omp::Backend::Renderer({box}).render(hyps, K, settings);
-  std::printf("consumer: cpu %zu points, thrust_omp %zu points\n", a.size(), b.size());
-  return a.size() > 0 && a.z == b.z && a.pixel == b.pixel ? 0 : 1;
+  const auto models = perch2::synth::builtin_models();
+  std::printf("consumer: cpu %zu points, thrust_omp %zu points, %zu built-in synth models\n", a.size(), b.size(),
+              models.size());
+  return a.size() > 0 && a.z == b.z && a.pixel == b.pixel && !models.empty() ? 0 : 1;
 }
