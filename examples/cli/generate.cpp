@@ -1,8 +1,10 @@
 // perch2 generate: writes a synthetic BOP dataset (see perch2/synth/dataset.hpp).
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
 #include <string>
+#include <vector>
 
 #include "commands.hpp"
 #include "perch2/io/image_io.hpp"
@@ -33,9 +35,13 @@ void write_preview(const std::string& out) {
     for (std::size_t p = 0; p < m.data.size(); ++p)
       if (m.data[p]) labels.data[p] = k + 1;
   }
-  float lo = 1e9f, hi = 0.f;
+  // Colour ramp over the 1st to 90th percentile of the readings (the far walls would flatten the table).
+  std::vector<float> valid;
   for (float d : depth.data)
-    if (d > 0) lo = std::min(lo, d), hi = std::max(hi, d);
+    if (d > 0) valid.push_back(d);
+  std::sort(valid.begin(), valid.end());
+  const float lo = valid.empty() ? 0.f : valid[valid.size() / 100];
+  const float hi = valid.empty() ? 1.f : valid[valid.size() * 9 / 10];
   perch2::io::save_color_image(out + "/preview_rgb.png", rgb);
   perch2::io::save_color_image(out + "/preview_depth.png",
                                perch2::synth::depth_preview(depth, lo, std::max(hi, lo + 0.01f)));

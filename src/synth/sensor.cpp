@@ -268,9 +268,10 @@ Frame SceneRenderer::render(const Pose& T_world_cam, const SensorSettings& s, Rn
     if (q.z() <= 0) return 1.f;
     const int u = int(std::lround(light_K.fx * q.x() / q.z() + light_K.cx));
     const int v = int(std::lround(light_K.fy * q.y() / q.z() + light_K.cy));
+    // Percentage-closer filtering over 5 x 5 texels: soft shadow edges of a light a few centimetres wide.
     int lit = 0, total = 0;
-    for (int dv = -1; dv <= 1; ++dv)
-      for (int du = -1; du <= 1; ++du, ++total) {
+    for (int dv = -2; dv <= 2; ++dv)
+      for (int du = -2; du <= 2; ++du, ++total) {
         const int x = u + du, y = v + dv;
         if (x < 0 || y < 0 || x >= light_K.width || y >= light_K.height) {
           ++lit;

@@ -105,9 +105,9 @@ ColorImage wood_texture(int size, unsigned seed) {
     for (int x = 0; x < size; ++x) {
       const double fx = 2 * CV_PI * x / size, fy = 2 * CV_PI * y / size;
       // Growth rings: bands across y, bent slowly along x.
-      const double warp = 0.9 * std::sin(fx + phase[0]) + 0.35 * std::sin(3 * fx + phase[1]);
-      const double rings = 0.5 + 0.5 * std::sin(7 * fy + 2.0 * warp + 0.5 * std::sin(2 * fy + phase[2]));
-      const double t = 0.55 * std::pow(rings, 3.0) + 0.45 * smooth[y];
+      const double warp = 0.5 * std::sin(fx + phase[0]) + 0.2 * std::sin(3 * fx + phase[1]);
+      const double rings = 0.5 + 0.5 * std::sin(11 * fy + 1.2 * warp + 0.4 * std::sin(2 * fy + phase[2]));
+      const double t = 0.4 * std::pow(rings, 4.0) + 0.6 * smooth[y];
       img.at<cv::Vec3b>(y, x) = {cv::saturate_cast<uchar>(150 - 55 * t),
                                  cv::saturate_cast<uchar>(108 - 45 * t),
                                  cv::saturate_cast<uchar>(72 - 32 * t)};

@@ -23,7 +23,7 @@ int main() {
   const auto a = perch2::cpu::Backend::Renderer({box}).render(hyps, K, settings);
   const auto b = perch2::thrust_omp::Backend::Renderer({box}).render(hyps, K, settings);
   const auto models = perch2::synth::builtin_models();
-  std::printf("consumer: cpu %zu points, thrust_omp %zu points, %zu built-in synth models\n", a.size(), b.size(),
-              models.size());
+  std::printf("consumer: cpu %zu points, thrust_omp %zu points, %zu built-in synth models\n", a.size(),
+              b.size(), models.size());
   return a.size() > 0 && a.z == b.z && a.pixel == b.pixel && !models.empty() ? 0 : 1;
 }

@@ -30,10 +30,10 @@ struct SceneSettings {
   float upside_down_probability = 0.15f;
   float lean_probability = 0.25f;  ///< tilted by lean_min..lean_max about a horizontal axis
   float lean_min_rad = 0.25f, lean_max_rad = 0.6f;
-  float stack_probability = 0.3f;   ///< dropped over an object already placed (lands on top of it)
-  float max_stack_height_m = 0.3f;  ///< objects would rest higher than this: retried
-  float height_cell_m = 0.002f;     ///< 6-DoF drop height map resolution, metres
-  float clearance_m = 0.001f;       ///< 6-DoF: gap left above the surface an object is dropped on
+  float stack_probability = 0.2f;    ///< dropped over an object already placed (lands on top of it)
+  float max_stack_height_m = 0.25f;  ///< objects would rest higher than this: retried
+  float height_cell_m = 0.002f;      ///< 6-DoF drop height map resolution, metres
+  float clearance_m = 0.001f;        ///< 6-DoF: gap left above the surface an object is dropped on
   /// 6-DoF: points this close to what lies below support the object; a resting pose is kept only if the
   /// object's centre lies over the hull of its support points (static stability), metres.
   float contact_m = 0.004f;

@@ -44,8 +44,8 @@ struct SensorSettings {
   float white_balance_jitter = 0.08f;  ///< relative per-channel gain, uniform +-
   float vignetting = 0.25f;            ///< brightness loss at the image corners, fraction
   float blur_sigma_px = 0.6f;          ///< optics + demosaicing, pixels
-  float shot_noise = 0.012f;           ///< sigma of sqrt(signal) noise (linear intensity in 0..1)
-  float read_noise = 0.004f;           ///< sigma of additive noise (linear intensity)
+  float shot_noise = 0.02f;            ///< sigma of sqrt(signal) noise (linear intensity in 0..1)
+  float read_noise = 0.006f;           ///< sigma of additive noise (linear intensity)
 };
 
 /// One rendered frame with its ground truth.
