@@ -579,6 +579,24 @@ TEST_CASE("generated datasets are deterministic for a seed, and 6-DoF mode write
   CHECK(fa.at("models/models_info.json") == fc.at("models/models_info.json"));
 }
 
+TEST_CASE("user models from a folder tree: units guessed per file, re-centred, no symmetries") {
+  PERCH2_REQUIRE_SHARED_DATA(cat, "models/linemod_obj_06/obj_06.ply");
+  const std::string dir = fs::path(cat).parent_path().parent_path().string();
+  const auto models = load_user_models(dir);
+  REQUIRE(models.size() == 3);  // cat (PLY, mm), banana and scissors (OBJ, metres) in their own folders
+  CHECK(models[0].name == "linemod_obj_06_obj_06");
+  CHECK(models[1].name == "ycb_011_banana_textured_simple");
+  for (const auto& m : models) {
+    INFO(m.name);
+    const float size = m.mesh.bounds().sizes().maxCoeff();
+    CHECK(size > 0.05f);
+    CHECK(size < 0.3f);  // metres, whatever the file's unit
+    CHECK(m.mesh.bounds().center().norm() < 1e-5f);
+    CHECK(m.symmetries.empty());
+  }
+  CHECK(models[1].mesh.has_texture());
+}
+
 TEST_CASE("bad inputs are rejected with the input named") {
   const auto models = builtin_models();
   DatasetSettings s = small_dataset(Mode::ThreeDof, 1);

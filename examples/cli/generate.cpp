@@ -101,13 +101,19 @@ int run_generate(int argc, char** argv) {
   std::printf("perch2 generate: %s, %d scenes x %d images, seed %llu -> %s (%.1f s)\n", mode.c_str(),
               s.scenes, settings.images_per_scene, static_cast<unsigned long long>(settings.seed),
               out.c_str(), s.seconds);
-  std::printf("  %-4s %-16s %9s %8s %9s %12s\n", "id", "object", "instances", "targets", "detected",
+  int w = 6;  // name column width
+  for (const auto& o : s.objects) w = std::max(w, int(o.name.size()));
+  std::printf("  %-4s %-*s %9s %8s %9s %11s\n", "id", w, "object", "instances", "targets", "detected",
               "mean visib");
   for (const auto& o : s.objects)
-    std::printf("  %-4d %-16s %9d %8d %9d %12.2f\n", o.obj_id, o.name.c_str(), o.instances, o.targets,
+    std::printf("  %-4d %-*s %9d %8d %9d %11.2f\n", o.obj_id, w, o.name.c_str(), o.instances, o.targets,
                 o.detected, o.instances ? o.visible_fraction_sum / o.instances : 0.0);
-  std::printf("  %-21s %9d %8d %9d\n", "all", s.instances, s.targets, s.detections - s.spurious);
-  std::printf("  %d detections (%d spurious) in %s; symmetries in models/models_info.json\n", s.detections,
-              s.spurious, settings.detections_file.c_str());
+  int detected = 0;
+  double visib = 0;
+  for (const auto& o : s.objects) detected += o.detected, visib += o.visible_fraction_sum;
+  std::printf("  %-*s %9d %8d %9d %11.2f\n", w + 5, "all", s.instances, s.targets, detected,
+              s.instances ? visib / s.instances : 0.0);
+  std::printf("  %d detections (%d spurious, %d with a look-alike's label) in %s\n", s.detections, s.spurious,
+              s.detections - s.spurious - detected, settings.detections_file.c_str());
   return 0;
 }

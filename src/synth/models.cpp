@@ -305,12 +305,12 @@ std::vector<ObjectModel> builtin_models() {
 
 std::vector<ObjectModel> load_user_models(const std::string& dir, const UserModelSettings& settings) {
   if (!fs::is_directory(dir)) throw FileError(dir, "model folder not found");
-  std::vector<fs::path> files;
-  for (const auto& e : fs::directory_iterator(dir)) {
+  std::vector<fs::path> files;  // relative to dir, any depth (e.g. YCB's one folder per object)
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
     std::string ext = e.path().extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(),
                    [](unsigned char c) { return char(std::tolower(c)); });
-    if (e.is_regular_file() && (ext == ".ply" || ext == ".obj")) files.push_back(e.path());
+    if (e.is_regular_file() && (ext == ".ply" || ext == ".obj")) files.push_back(fs::relative(e.path(), dir));
   }
   if (files.empty()) throw FileError(dir, "holds no .ply or .obj model");
   std::sort(files.begin(), files.end());
@@ -318,10 +318,11 @@ std::vector<ObjectModel> load_user_models(const std::string& dir, const UserMode
   for (const auto& f : files) {
     ObjectModel m;
     m.obj_id = int(out.size()) + 1;
-    m.name = f.stem().string();
+    m.name = (f.parent_path() / f.stem()).generic_string();
+    std::replace(m.name.begin(), m.name.end(), '/', '_');
     io::MeshLoadOptions opt;
     opt.scale = settings.scale > 0 ? settings.scale : 1.f;
-    m.mesh = io::load_mesh(f.string(), opt);
+    m.mesh = io::load_mesh((fs::path(dir) / f).string(), opt);
     if (settings.scale <= 0 && m.mesh.bounds().diagonal().norm() > settings.mm_guess_threshold)
       for (auto& v : m.mesh.vertices) v *= 0.001f;
     centre_on_bounding_box(m.mesh);

@@ -325,9 +325,10 @@ Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings&
   for (std::size_t i = 0; i < order.size(); ++i) order[i] = int(i);
   for (std::size_t i = order.size(); i > 1; --i) std::swap(order[i - 1], order[rng.integer(0, int(i) - 1)]);
   std::vector<int> chosen;
+  std::size_t next = 0;  // next unused model in the shuffled order
   for (int k = 0; k < count; ++k) {
-    const bool dup = !chosen.empty() && (rng.chance(s.duplicate_probability) || k >= int(order.size()));
-    chosen.push_back(dup ? chosen[rng.integer(0, int(chosen.size()) - 1)] : order[k]);
+    const bool dup = !chosen.empty() && (rng.chance(s.duplicate_probability) || next >= order.size());
+    chosen.push_back(dup ? chosen[rng.integer(0, int(chosen.size()) - 1)] : order[next++]);
   }
   const int num_distractors = rng.integer(s.min_distractors, s.max_distractors);
   std::vector<Prop> distractors;

@@ -64,8 +64,9 @@ struct UserModelSettings {
   float mm_guess_threshold = 5.f;  ///< file units (a 5 m object is unlikely on a table)
 };
 
-/// Loads every .ply/.obj of `dir` (sorted by file name; obj_id 1, 2, ...), re-centred on the bounding box.
-/// Symmetries are unknown (none). FileError if the folder is missing or holds no model.
+/// Loads every .ply/.obj under `dir`, subfolders included (sorted by relative path; obj_id 1, 2, ...; name =
+/// relative path without extension, '/' -> '_'), re-centred on the bounding box. Symmetries are unknown
+/// (none). FileError if the folder is missing or holds no model.
 PERCH2_API std::vector<ObjectModel> load_user_models(const std::string& dir, const UserModelSettings& = {});
 
 /// Largest distance between two vertices, metres (exact for up to a few thousand hull points).
