@@ -3,10 +3,10 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
 
+#include "bop_json.hpp"
 #include "perch2/io/image_io.hpp"
 
 namespace perch2::synth {
@@ -23,9 +23,7 @@ std::string id6(int id) {
 }
 
 void write_json(const fs::path& path, const json& j) {
-  std::ofstream f(path);
-  f << j.dump(2) << "\n";
-  if (!f) throw FileError(path.string(), "cannot be written");
+  detail::write_bop_json(path.string(), j);
 }
 
 /// Row-major rotation and translation in millimetres.

@@ -3,10 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "bop_json.hpp"
 #include "box_faces.hpp"
 #include "perch2/io/mesh_io.hpp"
 #include "perch2/synth/random.hpp"
@@ -392,9 +392,7 @@ void write_bop_models(const std::string& dir, const std::vector<ObjectModel>& mo
     }
     info[std::to_string(m.obj_id)] = j;
   }
-  std::ofstream f(fs::path(dir) / "models_info.json");
-  f << info.dump(2) << "\n";
-  if (!f) throw FileError((fs::path(dir) / "models_info.json").string(), "cannot be written");
+  detail::write_bop_json((fs::path(dir) / "models_info.json").string(), info);
 }
 
 }  // namespace perch2::synth
