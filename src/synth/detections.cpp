@@ -107,7 +107,7 @@ std::vector<Detection> simulate_detections(const Frame& frame, const std::vector
     return std::string();
   };
   std::vector<Detection> out;
-  const float time_s = s.time_s * (1.f + 0.1f * rng.normal());
+  const float time_s = s.time_s * std::max(0.f, 1.f + s.time_jitter * rng.normal());
   for (std::size_t k = 0; k < obj_ids.size(); ++k) {
     MaskImage visible(W, H, 0);
     int count = 0;
@@ -122,13 +122,15 @@ std::vector<Detection> simulate_detections(const Frame& frame, const std::vector
     Detection d;
     d.gt_index = int(k);
     d.category_id = obj_ids[k];
-    d.score = std::clamp(0.55f + 0.4f * fraction + s.score_noise * score_noise, 0.05f, 0.999f);
+    d.score = std::clamp(s.score_base + s.score_per_visible * fraction + s.score_noise * score_noise, 0.01f,
+                         0.999f);
     if (r_conf < s.confusion_probability) {
       std::vector<int> alike;
       for (const auto& m : all_models)
         if (m.obj_id != obj_ids[k] && family(m.name) == family(name_of(obj_ids[k])))
           alike.push_back(m.obj_id);
-      if (!alike.empty()) d.category_id = alike[rng.integer(0, int(alike.size()) - 1)], d.score *= 0.7f;
+      if (!alike.empty())
+        d.category_id = alike[rng.integer(0, int(alike.size()) - 1)], d.score *= s.confusion_score_factor;
     }
     d.mask = degrade(visible, shift * s.boundary_shift_px, s.boundary_wobble_px, rng);
     const auto box = mask_bbox(d.mask);
@@ -140,7 +142,7 @@ std::vector<Detection> simulate_detections(const Frame& frame, const std::vector
   if (rng.chance(s.spurious_probability) && !all_models.empty()) {
     Detection d;
     d.category_id = all_models[rng.integer(0, int(all_models.size()) - 1)].obj_id;
-    d.score = rng.uniform(0.1f, 0.6f);
+    d.score = rng.uniform(s.spurious_min_score, s.spurious_max_score);
     MaskImage region(W, H, 0);
     int distractors = 0;
     for (int v : frame.visible.data) distractors = std::max(distractors, -v);

@@ -29,6 +29,8 @@ void check(const SceneSettings& s) {
     bad("camera_min_distance_m", "need 0 < min <= max");
   if (!(s.height_cell_m > 0)) bad("height_cell_m", "must be > 0");
   if (s.placement_attempts < 1) bad("placement_attempts", "must be >= 1");
+  if (!(s.distractor_min_size_m > 0) || s.distractor_max_size_m < s.distractor_min_size_m)
+    bad("distractor_min_size_m", "need 0 < min <= max");
 }
 
 /// Pose with rotation R and translation t.
@@ -195,20 +197,21 @@ ColorImage stripes_texture(Rng& rng) {
 }
 
 /// A random unannotated shape: box, cylinder, ball or cup-like frustum, centred on its bounding box.
-Prop random_distractor(Rng& rng) {
+Prop random_distractor(const SceneSettings& s, Rng& rng) {
   Prop p;
   const int kind = rng.integer(0, 3);
+  const float lo = s.distractor_min_size_m, hi = s.distractor_max_size_m;
   if (kind == 0) {
-    p.mesh = textured_box({rng.uniform(0.03f, 0.1f), rng.uniform(0.03f, 0.1f), rng.uniform(0.02f, 0.09f)},
+    p.mesh = textured_box({rng.uniform(lo, hi), rng.uniform(lo, hi), rng.uniform(lo, hi)},
                           stripes_texture(rng), rng.uniform(0.03f, 0.12f));
   } else {
     std::vector<Vec2> profile;
-    const float r = rng.uniform(0.02f, 0.045f), h = rng.uniform(0.03f, 0.13f);
+    const float r = 0.5f * rng.uniform(lo, hi), h = rng.uniform(lo, hi);
     if (kind == 1) profile = {{0.f, 0.f}, {r, 0.f}, {r, h}, {0.f, h}};
     if (kind == 2)
       for (int k = 0; k <= 12; ++k)
         profile.emplace_back(r * std::sin(kPi * k / 12), r * (1 - std::cos(kPi * k / 12)));
-    if (kind == 3) profile = {{0.f, 0.f}, {0.6f * r, 0.f}, {r, h}, {0.f, h}};
+    if (kind == 3) profile = {{0.f, 0.f}, {0.6f * r, 0.f}, {r, h}, {0.f, h}};  // a cup-like frustum
     p.mesh = make_lathe(profile, 40);
     p.mesh.texture = stripes_texture(rng);
   }
@@ -306,7 +309,7 @@ Pose sample_camera_pose(const SceneSettings& s, Rng& rng) {
   const float el = rng.uniform(s.camera_min_elevation_rad, s.camera_max_elevation_rad);
   const float az = rng.uniform(0.f, 2 * kPi);
   const Vec3 target(rng.uniform(-s.look_at_jitter_m, s.look_at_jitter_m),
-                    rng.uniform(-s.look_at_jitter_m, s.look_at_jitter_m), 0.03f);
+                    rng.uniform(-s.look_at_jitter_m, s.look_at_jitter_m), s.look_at_height_m);
   const Vec3 eye = target + d * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
   const float roll = rng.uniform(-s.camera_roll_rad, s.camera_roll_rad);
   return look_at(eye, target) *
@@ -332,7 +335,7 @@ Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings&
   }
   const int num_distractors = rng.integer(s.min_distractors, s.max_distractors);
   std::vector<Prop> distractors;
-  for (int k = 0; k < num_distractors; ++k) distractors.push_back(random_distractor(rng));
+  for (int k = 0; k < num_distractors; ++k) distractors.push_back(random_distractor(s, rng));
 
   // Everything to place, as (mesh, is distractor, index).
   struct Item {
@@ -383,12 +386,12 @@ Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings&
       const Eigen::Matrix3f R = rest_rotation(s, rng, it.model < 0, leaning);
       Vec2 xy = random_in_disc(s.placement_radius_m, rng);
       const float r_stack = float(rng.uniform()), a = rng.uniform(0.f, 2 * kPi),
-                  d = rng.uniform(0.02f, 0.09f);
+                  d = rng.uniform(s.lean_min_distance_m, s.lean_max_distance_m);
       const Vec2 base = centres.empty() ? xy : centres[rng.integer(0, int(centres.size()) - 1)];
       if (!centres.empty() && leaning)  // lean against a neighbour
         xy = base + d * Vec2(std::cos(a), std::sin(a));
       else if (!centres.empty() && r_stack < s.stack_probability)  // on top of it
-        xy = base + Vec2(0.015f * rng.normal(), 0.015f * rng.normal());
+        xy = base + s.stack_jitter_m * Vec2(rng.normal(), rng.normal());
       std::vector<Vec3> pts;
       pts.reserve(samples.size());
       for (const auto& p : samples) pts.push_back(R * p + Vec3(xy.x(), xy.y(), 0.f));

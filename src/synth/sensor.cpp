@@ -70,6 +70,9 @@ void validate(const SensorSettings& s) {
   need(s.ambient_min >= 0 && s.ambient_max >= s.ambient_min, "ambient_min", "need 0 <= min <= max");
   need(s.light_min_distance_m > 0 && s.light_max_distance_m >= s.light_min_distance_m, "light_min_distance_m",
        "need 0 < min <= max");
+  need(s.shadow_map_size_px >= 16 && s.shadow_map_half_extent_m > 0, "shadow_map_size_px",
+       "need >= 16 pixels and a positive extent");
+  need(s.exposure_target > 0 && s.exposure_target < 1, "exposure_target", "must be in (0, 1)");
   need(s.blur_sigma_px >= 0 && s.shot_noise >= 0 && s.read_noise >= 0, "blur_sigma_px", "must be >= 0");
 }
 
@@ -248,13 +251,14 @@ Frame SceneRenderer::render(const Pose& T_world_cam, const SensorSettings& s, Rn
   const Vec3 light_world =
       dist * Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
   const float warmth = rng.uniform(-1.f, 1.f);
-  const Vec3 light_colour(1.f + 0.08f * warmth, 1.f, 1.f - 0.1f * warmth);
+  const Vec3 light_colour(1.f + s.light_colour_jitter * warmth, 1.f, 1.f - s.light_colour_jitter * warmth);
   const float ambient = rng.uniform(s.ambient_min, s.ambient_max);
   const Pose T_world_light = look_at(light_world, Vec3(0, 0, 0.05f));
   const Pose T_light_cam = T_world_light.inverse() * T_world_cam;
-  const Intrinsics LK{0.f, 0.f, 383.5f, 383.5f, 768, 768};
-  Intrinsics light_K = LK;
-  light_K.fx = light_K.fy = 384.f * dist / 0.6f;  // covers +-0.6 m around the table centre
+  const float half = 0.5f * float(s.shadow_map_size_px);
+  const float light_f = half * dist / s.shadow_map_half_extent_m;
+  const Intrinsics light_K{
+      light_f, light_f, half - 0.5f, half - 0.5f, s.shadow_map_size_px, s.shadow_map_size_px};
   std::vector<int> casters;
   for (int i = 0; i < num_inst; ++i)
     if (im.instances[i].kind != Kind::Environment) casters.push_back(i);
@@ -294,11 +298,12 @@ Frame SceneRenderer::render(const Pose& T_world_cam, const SensorSettings& s, Rn
     const Vec3 &P = point[p], &n = normal[p];
     const Vec3 L = (light_cam - P).normalized(), V = -P.normalized();
     const float ndl = std::max(0.f, n.dot(L));
-    const float vis = ndl > 0 ? lit_fraction(P, s.shadow_bias_m + 0.01f * (1.f - ndl)) : 0.f;
+    const float vis = ndl > 0 ? lit_fraction(P, s.shadow_bias_m + s.shadow_slope_bias_m * (1.f - ndl)) : 0.f;
     const Material& mat = im.instances[i].material;
     const float spec =
         ndl > 0 ? mat.specular * std::pow(std::max(0.f, n.dot((L + V).normalized())), mat.shininess) : 0.f;
-    const float amb = ambient * (0.7f + 0.3f * std::max(0.f, n.dot(up_cam)));
+    const float amb =
+        ambient * (1.f - s.ambient_sky_fraction + s.ambient_sky_fraction * std::max(0.f, n.dot(up_cam)));
     const Rgb8 a = scene.colour[p];
     const Vec3 albedo_lin(lut[a.r], lut[a.g], lut[a.b]);
     const Vec3 c =
@@ -310,8 +315,8 @@ Frame SceneRenderer::render(const Pose& T_world_cam, const SensorSettings& s, Rn
   // 4. The camera: auto exposure with jitter, white balance, vignetting, blur, shot and read noise, sRGB.
   const cv::Scalar mean = cv::mean(linear);
   const float luminance = float(0.2126 * mean[0] + 0.7152 * mean[1] + 0.0722 * mean[2]);
-  const float gain =
-      0.2f / std::max(luminance, 1e-4f) * (1.f + rng.uniform(-s.exposure_jitter, s.exposure_jitter));
+  const float gain = s.exposure_target / std::max(luminance, 1e-4f) *
+                     (1.f + rng.uniform(-s.exposure_jitter, s.exposure_jitter));
   const Vec3 wb(1.f + rng.uniform(-s.white_balance_jitter, s.white_balance_jitter), 1.f,
                 1.f + rng.uniform(-s.white_balance_jitter, s.white_balance_jitter));
   if (s.blur_sigma_px > 0) cv::GaussianBlur(linear, linear, {0, 0}, s.blur_sigma_px);
@@ -373,7 +378,7 @@ Frame SceneRenderer::render(const Pose& T_world_cam, const SensorSettings& s, Rn
     const float grazing =
         std::clamp((s.grazing_cos_none - cos_view) / (s.grazing_cos_none - s.grazing_cos_full), 0.f, 1.f);
     if (r_drop < grazing) continue;
-    if (highlight[p] * gain > 0.8f && r_drop < s.specular_dropout) continue;
+    if (highlight[p] * gain > s.specular_saturation && r_drop < s.specular_dropout) continue;
     if (r_drop > 1.f - s.random_dropout) continue;
     const float sigma =
         s.depth_noise_a_m + s.depth_noise_b_per_m * (d - s.depth_noise_z0_m) * (d - s.depth_noise_z0_m);

@@ -21,9 +21,14 @@ struct DetectionSettings {
   float boundary_wobble_px = 2.f;           ///< amplitude of the smooth random boundary displacement, pixels
   float box_jitter = 0.03f;                 ///< box sides move by normal noise of this times the box size
   float confusion_probability = 0.05f;      ///< a look-alike's label (same name before '_', e.g. can_*)
-  float spurious_probability = 0.3f;  ///< chance per image of one detection on a distractor (or the table)
-  float score_noise = 0.08f;          ///< sigma of the score noise
-  float time_s = 0.05f;               ///< detector time written per image, seconds
+  float spurious_probability = 0.3f;    ///< chance per image of one detection on a distractor (or the table)
+  float score_base = 0.55f;             ///< score of a barely visible true detection (before noise)
+  float score_per_visible = 0.4f;       ///< added score times the visible fraction
+  float score_noise = 0.08f;            ///< sigma of the score noise
+  float confusion_score_factor = 0.7f;  ///< a confused label's score is multiplied by this
+  float spurious_min_score = 0.1f, spurious_max_score = 0.6f;  ///< uniform score of a spurious detection
+  float time_jitter = 0.1f;                                    ///< relative sigma of the per-image time
+  float time_s = 0.05f;                                        ///< detector time written per image, seconds
 };
 
 struct Detection {

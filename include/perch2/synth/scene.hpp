@@ -22,6 +22,7 @@ struct SceneSettings {
   int min_objects = 4, max_objects = 7;  ///< annotated instances per scene (fewer if they do not fit)
   float duplicate_probability = 0.15f;   ///< chance that an instance repeats a model already in the scene
   int min_distractors = 1, max_distractors = 3;  ///< unannotated random shapes on the table
+  float distractor_min_size_m = 0.02f, distractor_max_size_m = 0.13f;  ///< extent range of distractors
   float placement_radius_m = 0.2f;  ///< objects' origins lie within this disc around the table centre
   float min_gap_m = 0.004f;         ///< 3-DoF: footprints keep at least this distance, metres
   int placement_attempts = 200;     ///< random tries per object before it is left out
@@ -30,7 +31,9 @@ struct SceneSettings {
   float upside_down_probability = 0.15f;
   float lean_probability = 0.25f;  ///< tilted by lean_min..lean_max about a horizontal axis
   float lean_min_rad = 0.25f, lean_max_rad = 0.6f;
-  float stack_probability = 0.2f;    ///< dropped over an object already placed (lands on top of it)
+  float stack_probability = 0.2f;  ///< dropped over an object already placed (lands on top of it)
+  float stack_jitter_m = 0.015f;   ///< sigma of the drop point around the object below, metres
+  float lean_min_distance_m = 0.02f, lean_max_distance_m = 0.09f;  ///< leaning: drop point from a neighbour
   float max_stack_height_m = 0.25f;  ///< objects would rest higher than this: retried
   float height_cell_m = 0.002f;      ///< 6-DoF drop height map resolution, metres
   float clearance_m = 0.001f;        ///< 6-DoF: gap left above the surface an object is dropped on
@@ -44,6 +47,7 @@ struct SceneSettings {
   float camera_min_distance_m = 0.6f, camera_max_distance_m = 1.2f;  ///< eye to the look-at point
   float camera_min_elevation_rad = 0.5235988f, camera_max_elevation_rad = 1.1344640f;  ///< 30 to 65 deg
   float look_at_jitter_m = 0.04f;  ///< look-at point: table centre + uniform jitter in x, y
+  float look_at_height_m = 0.03f;  ///< height of the look-at point above the table top, metres
   float camera_roll_rad = 0.06f;   ///< uniform roll jitter about the optical axis
 };
 

@@ -34,18 +34,25 @@ struct SensorSettings {
   float grazing_cos_none = 0.35f;       ///< above this: no grazing dropout (linear ramp in between)
   float projector_baseline_m = 0.075f;  ///< IR projector offset along +x: its shadows have no reading
   float specular_dropout = 0.5f;        ///< chance of no reading where the specular highlight saturates
+  float specular_saturation = 0.8f;     ///< exposed highlight (linear) above which it counts as saturated
   float random_dropout = 0.003f;        ///< isolated missing pixels, fraction
   // Colour.
   float ambient_min = 0.25f, ambient_max = 0.45f;  ///< ambient light relative to the key light
   float light_min_elevation_rad = 0.6f, light_max_elevation_rad = 1.4f;
   float light_min_distance_m = 1.2f, light_max_distance_m = 2.5f;
-  float shadow_bias_m = 0.004f;        ///< shadow-map depth bias, metres
-  float exposure_jitter = 0.25f;       ///< relative, uniform +-
-  float white_balance_jitter = 0.08f;  ///< relative per-channel gain, uniform +-
-  float vignetting = 0.25f;            ///< brightness loss at the image corners, fraction
-  float blur_sigma_px = 0.6f;          ///< optics + demosaicing, pixels
-  float shot_noise = 0.02f;            ///< sigma of sqrt(signal) noise (linear intensity in 0..1)
-  float read_noise = 0.006f;           ///< sigma of additive noise (linear intensity)
+  float shadow_bias_m = 0.004f;           ///< shadow-map depth bias, metres
+  float shadow_slope_bias_m = 0.01f;      ///< extra bias where the light grazes (times 1 - cos), metres
+  int shadow_map_size_px = 768;           ///< square shadow map rendered from the key light
+  float shadow_map_half_extent_m = 0.6f;  ///< it covers +- this around the table centre, metres
+  float light_colour_jitter = 0.1f;       ///< warm/cool tint: red and blue gains change by up to this
+  float ambient_sky_fraction = 0.3f;      ///< part of the ambient light that comes from above (n . up)
+  float exposure_target = 0.2f;           ///< auto exposure: mean linear luminance of the image
+  float exposure_jitter = 0.25f;          ///< relative, uniform +-
+  float white_balance_jitter = 0.08f;     ///< relative per-channel gain, uniform +-
+  float vignetting = 0.25f;               ///< brightness loss at the image corners, fraction
+  float blur_sigma_px = 0.6f;             ///< optics + demosaicing, pixels
+  float shot_noise = 0.02f;               ///< sigma of sqrt(signal) noise (linear intensity in 0..1)
+  float read_noise = 0.006f;              ///< sigma of additive noise (linear intensity)
 };
 
 /// One rendered frame with its ground truth.
