@@ -609,6 +609,63 @@ TEST_CASE("user models from a folder tree: units guessed per file, re-centred, n
   CHECK(models[1].mesh.has_texture());
 }
 
+TEST_CASE("simulated detector: masks within the boundary shift, misses, spurious detections, scores") {
+  // A hand-made frame: object 0 fully visible (a 30 x 40 rectangle), object 1 20 % visible, a distractor.
+  Frame f;
+  f.camera = {100.f, 100.f, 49.5f, 49.5f, 100, 100};
+  f.visible = LabelImage(100, 100, 0);
+  f.masks.assign(2, MaskImage(100, 100, 0));
+  for (int v = 20; v < 60; ++v)
+    for (int u = 10; u < 40; ++u) f.visible(u, v) = 1, f.masks[0](u, v) = 255;
+  for (int v = 70; v < 80; ++v)
+    for (int u = 60; u < 70; ++u) f.visible(u, v) = 2;
+  for (int v = 10; v < 20; ++v)
+    for (int u = 70; u < 90; ++u) f.visible(u, v) = -1;
+  f.px_count_all = {1200, 500};
+  const auto models = builtin_models();
+  DetectionSettings s;
+  const float reach = s.boundary_shift_px + s.boundary_wobble_px + 1.5f;  // pixels a boundary may move
+  int found[2] = {0, 0}, spurious = 0, confused = 0, within = 0;
+  double score[2] = {0, 0};
+  const int runs = 300;
+  for (int run = 0; run < runs; ++run) {
+    Rng rng(std::uint64_t(run) + 1);
+    for (const Detection& d : simulate_detections(f, {1, 4}, models, s, rng)) {
+      if (d.gt_index < 0) {
+        ++spurious;
+        continue;
+      }
+      ++found[d.gt_index];
+      score[d.gt_index] += d.score;
+      confused += d.category_id != (d.gt_index == 0 ? 1 : 4);
+      if (d.gt_index != 0) continue;
+      bool ok = true;  // every mask pixel within `reach` of the rectangle, every deep-inside pixel kept
+      for (int v = 0; v < 100; ++v)
+        for (int u = 0; u < 100; ++u) {
+          const float dx = std::max({10.f - u, u - 39.f, 0.f}), dy = std::max({20.f - v, v - 59.f, 0.f});
+          const bool far_out = std::hypot(dx, dy) > reach;
+          const bool deep_in = u >= 10 + reach && u <= 39 - reach && v >= 20 + reach && v <= 59 - reach;
+          ok = ok && !(d.mask(u, v) && far_out) && !(!d.mask(u, v) && deep_in);
+        }
+      within += ok;
+    }
+  }
+  const double full_miss = 1.0 - double(found[0]) / runs, partial_miss = 1.0 - double(found[1]) / runs;
+  INFO("misses " << full_miss << " / " << partial_miss << ", spurious " << spurious << ", confused "
+                 << confused);
+  CHECK(full_miss < 0.1);     // 3 % expected
+  CHECK(partial_miss > 0.1);  // 3 % + 35 % x 0.8^2 = 25 % expected
+  CHECK(partial_miss < 0.45);
+  CHECK(within == found[0]);
+  CHECK(score[0] / found[0] > score[1] / found[1]);  // less visible, less confident
+  CHECK(spurious > runs / 6);                        // 30 % expected
+  CHECK(spurious < runs / 2);
+  CHECK(confused > 0);  // cans and bottles have look-alikes
+  CHECK(confused < runs / 5);
+  Rng rng(1);
+  CHECK_THROWS_AS(simulate_detections(f, {1}, models, s, rng), InvalidInput);  // one obj_id per object
+}
+
 TEST_CASE("bad inputs are rejected with the input named") {
   const auto models = builtin_models();
   DatasetSettings s = small_dataset(Mode::ThreeDof, 1);
@@ -631,4 +688,17 @@ TEST_CASE("bad inputs are rejected with the input named") {
   CHECK_THROWS_WITH_AS(load_user_models(temp_path("synth_empty_models")), doctest::Contains("no .ply"),
                        FileError);
   CHECK_THROWS_AS(make_lathe({{0.f, 0.f}}, 16), InvalidInput);
+  Scene scene;
+  scene.objects.push_back({42, Pose::Identity()});
+  CHECK_THROWS_WITH_AS(SceneRenderer(models, scene), doctest::Contains("scene object 0"), InvalidInput);
+  scene.objects.clear();
+  const SceneRenderer renderer(models, scene);
+  SensorSettings sensor;
+  sensor.grazing_cos_none = 0.f;
+  CHECK_THROWS_WITH_AS(renderer.render(Pose::Identity(), sensor, rng), doctest::Contains("grazing_cos_none"),
+                       InvalidInput);
+  sensor = SensorSettings{};
+  Pose nan = Pose::Identity();
+  nan.translation().x() = NAN;
+  CHECK_THROWS_WITH_AS(renderer.render(nan, sensor, rng), doctest::Contains("T_world_cam"), InvalidInput);
 }
