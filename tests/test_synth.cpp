@@ -117,7 +117,7 @@ std::vector<std::uint32_t> decode_rle_string(const std::string& s) {
       x |= (c & 0x1f) << (5 * k);
       more = c & 0x20;
       ++p, ++k;
-      if (!more && (c & 0x10)) x |= -1LL << (5 * k);
+      if (!more && (c & 0x10)) x = (long long)((unsigned long long)x | (~0ULL << (5 * k)));  // sign-extend
     }
     if (counts.size() > 2) x += counts[counts.size() - 2];
     counts.push_back(std::uint32_t(x));

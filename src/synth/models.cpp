@@ -199,7 +199,7 @@ ObjectModel block(int id) {
   m.mesh = make_box({0.09f, 0.05f, 0.035f});
   m.mesh.name = m.name;
   m.mesh.vertex_colors.assign(m.mesh.vertices.size(), Rgb8{196, 150, 92});
-  for (const Vec3& axis : {Vec3::UnitX(), Vec3::UnitY(), Vec3::UnitZ()}) {
+  for (const Vec3 axis : {Vec3(Vec3::UnitX()), Vec3(Vec3::UnitY()), Vec3(Vec3::UnitZ())}) {
     Pose T = Pose::Identity();
     T.linear() = Eigen::AngleAxisf(kPi, axis).toRotationMatrix();
     m.symmetries.discrete.push_back(T);
