@@ -666,6 +666,19 @@ TEST_CASE("simulated detector: masks within the boundary shift, misses, spurious
   CHECK_THROWS_AS(simulate_detections(f, {1}, models, s, rng), InvalidInput);  // one obj_id per object
 }
 
+TEST_CASE("a tiny camera still gives a complete dataset (no size assumptions in the detector or noise)") {
+  DatasetSettings s = small_dataset(Mode::SixDof, 5);
+  s.images_per_scene = 1;
+  s.sensor.camera = {30.f, 30.f, 19.5f, 14.5f, 40, 30};
+  s.detection.spurious_probability = 1.f;
+  const fs::path root = temp_path("synth_tiny");
+  fs::remove_all(root);
+  const DatasetSummary summary = generate_dataset(builtin_models(), s, root.string());
+  CHECK(summary.images == 1);
+  CHECK(io::load_color_image((root / "test/000001/rgb/000000.png").string()).width == 40);
+  CHECK(read_json(root / "detections_synth.json").is_array());
+}
+
 TEST_CASE("bad inputs are rejected with the input named") {
   const auto models = builtin_models();
   DatasetSettings s = small_dataset(Mode::ThreeDof, 1);

@@ -26,8 +26,8 @@ class Rng {
   /// Uniform in [0, 1).
   double uniform() { return double(next() >> 11) * (1.0 / 9007199254740992.0); }
   float uniform(float lo, float hi) { return lo + float(uniform()) * (hi - lo); }
-  /// Uniform integer in [lo, hi].
-  int integer(int lo, int hi) { return lo + int(next() % std::uint64_t(hi - lo + 1)); }
+  /// Uniform integer in [lo, hi]; lo when hi <= lo.
+  int integer(int lo, int hi) { return hi <= lo ? lo : lo + int(next() % std::uint64_t(hi - lo + 1)); }
   bool chance(float p) { return uniform() < p; }
   /// Standard normal (Box-Muller; one value per call keeps the stream simple).
   float normal() {
