@@ -62,6 +62,7 @@ int run_generate(int argc, char** argv) {
       preview = true;
       continue;
     }
+    if (a == "-h" || a == "--help") generate_usage("writes a synthetic BOP dataset");
     if (k + 1 >= argc) generate_usage(a + " needs a value");
     const std::string v = argv[++k];
     try {
