@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <opencv2/imgproc.hpp>
 
 #include "box_faces.hpp"
@@ -316,67 +317,41 @@ Pose sample_camera_pose(const SceneSettings& s, Rng& rng) {
          make_pose(Eigen::AngleAxisf(roll, Vec3::UnitZ()).toRotationMatrix(), Vec3::Zero());
 }
 
-Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings& s, Rng& rng) {
-  if (models.empty()) throw InvalidInput("models", "no object models to place");
-  check(s);
-  Scene scene;
-  scene.environment = environment(s, rng);
+namespace {
 
-  // What to place: distinct models first, with the odd duplicate; then distractors.
-  const int count = rng.integer(s.min_objects, s.max_objects);
-  std::vector<int> order(models.size());
-  for (std::size_t i = 0; i < order.size(); ++i) order[i] = int(i);
-  for (std::size_t i = order.size(); i > 1; --i) std::swap(order[i - 1], order[rng.integer(0, int(i) - 1)]);
-  std::vector<int> chosen;
-  std::size_t next = 0;  // next unused model in the shuffled order
-  for (int k = 0; k < count; ++k) {
-    const bool dup = !chosen.empty() && (rng.chance(s.duplicate_probability) || next >= order.size());
-    chosen.push_back(dup ? chosen[rng.integer(0, int(chosen.size()) - 1)] : order[next++]);
-  }
-  const int num_distractors = rng.integer(s.min_distractors, s.max_distractors);
-  std::vector<Prop> distractors;
-  for (int k = 0; k < num_distractors; ++k) distractors.push_back(random_distractor(s, rng));
+/// Something to place: a model instance or a distractor.
+struct Item {
+  const Mesh* mesh;
+  int model;  ///< index into the models, -1 for a distractor
+  int distractor;
+};
 
-  // Everything to place, as (mesh, is distractor, index).
-  struct Item {
-    const Mesh* mesh;
-    int model;  // -1 for a distractor
-    int distractor;
-  };
-  std::vector<Item> items;
-  for (int m : chosen) items.push_back({&models[m].mesh, m, -1});
-  for (int d = 0; d < num_distractors; ++d) items.push_back({&distractors[d].mesh, -1, d});
+using Accept = std::function<void(const Item&, const Pose&)>;
 
-  auto accept = [&](const Item& it, const Pose& T) {
-    if (it.model >= 0)
-      scene.objects.push_back({it.model, T});
-    else {
-      distractors[it.distractor].T_world_obj = T;
-      scene.distractors.push_back(std::move(distractors[it.distractor]));
+/// 3-DoF: upright at random (x, y, yaw) where the convex footprint keeps min_gap_m from the others.
+void place_upright(const std::vector<Item>& items, const SceneSettings& s, Rng& rng, const Accept& accept) {
+  std::vector<Polygon> placed;
+  for (const Item& it : items) {
+    const Polygon fp = footprint(*it.mesh);
+    const float z = -it.mesh->bounds().min().z();  // resting on z = 0
+    for (int attempt = 0; attempt < s.placement_attempts; ++attempt) {
+      const Vec2 xy = random_in_disc(s.placement_radius_m, rng);
+      const float yaw = rng.uniform(0.f, 2 * kPi);
+      const Polygon moved = transformed(fp, xy.x(), xy.y(), yaw);
+      if (std::any_of(placed.begin(), placed.end(),
+                      [&](const Polygon& p) { return overlap(p, moved, s.min_gap_m); }))
+        continue;
+      placed.push_back(moved);
+      accept(it,
+             make_pose(Eigen::AngleAxisf(yaw, Vec3::UnitZ()).toRotationMatrix(), Vec3(xy.x(), xy.y(), z)));
+      break;
     }
-  };
-
-  if (s.mode == Mode::ThreeDof) {
-    std::vector<Polygon> placed;
-    for (const Item& it : items) {
-      const Polygon fp = footprint(*it.mesh);
-      const float z = -it.mesh->bounds().min().z();  // resting on z = 0
-      for (int attempt = 0; attempt < s.placement_attempts; ++attempt) {
-        const Vec2 xy = random_in_disc(s.placement_radius_m, rng);
-        const float yaw = rng.uniform(0.f, 2 * kPi);
-        const Polygon moved = transformed(fp, xy.x(), xy.y(), yaw);
-        if (std::any_of(placed.begin(), placed.end(),
-                        [&](const Polygon& p) { return overlap(p, moved, s.min_gap_m); }))
-          continue;
-        placed.push_back(moved);
-        accept(it,
-               make_pose(Eigen::AngleAxisf(yaw, Vec3::UnitZ()).toRotationMatrix(), Vec3(xy.x(), xy.y(), z)));
-        break;
-      }
-    }
-    return scene;
   }
+}
 
+/// 6-DoF: a random resting orientation dropped onto the height map (beside a neighbour when leaning, over one
+/// when stacking), kept when it is statically stable and not too high.
+void place_resting(const std::vector<Item>& items, const SceneSettings& s, Rng& rng, const Accept& accept) {
   HeightMap height(s.table_size_x_m, s.table_size_y_m, s.height_cell_m);
   std::vector<Vec2> centres;
   for (const Item& it : items) {
@@ -407,6 +382,50 @@ Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings&
       break;
     }
   }
+}
+
+/// Which models to place: distinct ones first (shuffled), with the odd duplicate.
+std::vector<int> choose_models(std::size_t num_models, const SceneSettings& s, Rng& rng) {
+  const int count = rng.integer(s.min_objects, s.max_objects);
+  std::vector<int> order(num_models);
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = int(i);
+  for (std::size_t i = order.size(); i > 1; --i) std::swap(order[i - 1], order[rng.integer(0, int(i) - 1)]);
+  std::vector<int> chosen;
+  std::size_t next = 0;  // next unused model in the shuffled order
+  for (int k = 0; k < count; ++k) {
+    const bool dup = !chosen.empty() && (rng.chance(s.duplicate_probability) || next >= order.size());
+    chosen.push_back(dup ? chosen[rng.integer(0, int(chosen.size()) - 1)] : order[next++]);
+  }
+  return chosen;
+}
+
+}  // namespace
+
+Scene compose_scene(const std::vector<ObjectModel>& models, const SceneSettings& s, Rng& rng) {
+  if (models.empty()) throw InvalidInput("models", "no object models to place");
+  check(s);
+  Scene scene;
+  scene.environment = environment(s, rng);
+  const std::vector<int> chosen = choose_models(models.size(), s, rng);
+  const int num_distractors = rng.integer(s.min_distractors, s.max_distractors);
+  std::vector<Prop> distractors;
+  for (int k = 0; k < num_distractors; ++k) distractors.push_back(random_distractor(s, rng));
+
+  std::vector<Item> items;  // objects first, then distractors fill the gaps
+  for (int m : chosen) items.push_back({&models[m].mesh, m, -1});
+  for (int d = 0; d < num_distractors; ++d) items.push_back({&distractors[d].mesh, -1, d});
+  const Accept accept = [&](const Item& it, const Pose& T) {
+    if (it.model >= 0) {
+      scene.objects.push_back({it.model, T});
+    } else {
+      distractors[it.distractor].T_world_obj = T;
+      scene.distractors.push_back(std::move(distractors[it.distractor]));
+    }
+  };
+  if (s.mode == Mode::ThreeDof)
+    place_upright(items, s, rng, accept);
+  else
+    place_resting(items, s, rng, accept);
   return scene;
 }
 
