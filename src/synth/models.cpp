@@ -1,6 +1,7 @@
 #include "perch2/synth/models.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -86,16 +87,18 @@ std::string pseudo_words(Rng& rng, int n) {
 }
 
 /// The printed cereal box: a 24-vertex box with an atlas texture (faces side by side at `ppm`).
-ObjectModel printed_box(int id) {
-  const Vec3 size(0.14f, 0.06f, 0.20f);
-  const float ppm = 2400.f;
-  const int wx = int(size.x() * ppm), wy = int(size.y() * ppm), hz = int(size.z() * ppm);
-  const int W = 2 * (wx + wy), H = hz + wy;
-  cv::Mat img(H, W, CV_8UC3, cv::Scalar(245, 180, 30));
+/// Atlas cells (x, y, w, h) in pixels of a box wx x wy x hz pixels: front, right, back, left, top, bottom.
+std::array<cv::Rect, 6> box_atlas_cells(int wx, int wy, int hz) {
+  return {cv::Rect{0, 0, wx, hz},   {wx, 0, wy, hz}, {wx + wy, 0, wx, hz},
+          {2 * wx + wy, 0, wy, hz}, {0, hz, wx, wy}, {wx, hz, wx, wy}};
+}
+
+/// The cereal box print: brand and a bowl on the front, text and a barcode on the back, nutrition tables on
+/// the sides, flaps on top and bottom.
+cv::Mat cereal_box_print(int wx, int wy, int hz) {
+  const auto cells = box_atlas_cells(wx, wy, hz);
+  cv::Mat img(hz + wy, 2 * (wx + wy), CV_8UC3, cv::Scalar(245, 180, 30));
   Rng rng(1234);
-  // Atlas cells (x, y, w, h) in pixels: front, right, back, left, top, bottom.
-  const cv::Rect cells[6] = {{0, 0, wx, hz},           {wx, 0, wy, hz}, {wx + wy, 0, wx, hz},
-                             {2 * wx + wy, 0, wy, hz}, {0, hz, wx, wy}, {wx, hz, wx, wy}};
   // Front: banner, brand, a bowl of cereal.
   const cv::Rect f = cells[0];
   cv::rectangle(img, {f.x, f.y + hz / 12, wx, hz / 5}, {200, 30, 40}, cv::FILLED);
@@ -133,6 +136,15 @@ ObjectModel printed_box(int id) {
     cv::line(img, {s.x, s.y + wy / 2}, {s.x + wx, s.y + wy / 2}, {150, 100, 20}, 3);
   }
 
+  return img;
+}
+
+ObjectModel printed_box(int id) {
+  const Vec3 size(0.14f, 0.06f, 0.20f);
+  const float ppm = 2400.f;
+  const int wx = int(size.x() * ppm), wy = int(size.y() * ppm), hz = int(size.z() * ppm);
+  const int W = 2 * (wx + wy), H = hz + wy;
+  const auto cells = box_atlas_cells(wx, wy, hz);
   ObjectModel m;
   m.obj_id = id, m.name = "box_crunch";
   m.material = {0.08f, 12.f};
@@ -153,7 +165,7 @@ ObjectModel printed_box(int id) {
     mesh.triangles.emplace_back(base, base + 2, base + 3);
     mesh.corner_uvs.insert(mesh.corner_uvs.end(), {uv[0], uv[1], uv[2], uv[0], uv[2], uv[3]});
   }
-  mesh.texture = detail::to_color_image(img);
+  mesh.texture = detail::to_color_image(cereal_box_print(wx, wy, hz));
   return m;
 }
 
