@@ -589,6 +589,15 @@ TEST_CASE("generated datasets are deterministic for a seed, and 6-DoF mode write
   CHECK(fa == fb);
   CHECK(fa.at("test/000001/rgb/000000.png") != fc.at("test/000001/rgb/000000.png"));
   CHECK(fa.at("models/models_info.json") == fc.at("models/models_info.json"));
+  // Scene 1 does not depend on how many scenes follow it.
+  s.seed = 21, s.num_scenes = 2;
+  const fs::path d = temp_path("synth_det_d");
+  fs::remove_all(d);
+  generate_dataset(models, s, d.string());
+  const auto fd = files(d);
+  CHECK(fd.at("test/000001/rgb/000000.png") == fa.at("test/000001/rgb/000000.png"));
+  CHECK(fd.at("test/000001/scene_gt.json") == fa.at("test/000001/scene_gt.json"));
+  CHECK(fd.count("test/000002/scene_gt.json") == 1);
 }
 
 TEST_CASE("user models from a folder tree: units guessed per file, re-centred, no symmetries") {
