@@ -616,6 +616,16 @@ TEST_CASE("user models from a folder tree: units guessed per file, re-centred, n
     CHECK(m.symmetries.empty());
   }
   CHECK(models[1].mesh.has_texture());
+  // Scans have more than 4000 vertices, so model_diameter searches extreme vertices only: compare with all
+  // pairs.
+  for (const auto& m : models) {
+    REQUIRE(m.mesh.vertices.size() > 4000);
+    float exact = 0;
+    for (std::size_t i = 0; i < m.mesh.vertices.size(); ++i)
+      for (std::size_t j = i + 1; j < m.mesh.vertices.size(); ++j)
+        exact = std::max(exact, (m.mesh.vertices[i] - m.mesh.vertices[j]).squaredNorm());
+    CHECK(model_diameter(m.mesh) == doctest::Approx(std::sqrt(exact)).epsilon(1e-4));
+  }
 }
 
 TEST_CASE("simulated detector: masks within the boundary shift, misses, spurious detections, scores") {
