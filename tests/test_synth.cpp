@@ -709,6 +709,9 @@ TEST_CASE("bad inputs are rejected with the input named") {
   auto twins = models;
   twins[1].obj_id = 1;
   CHECK_THROWS_WITH_AS(generate_dataset(twins, s, out), doctest::Contains("unique"), InvalidInput);
+  perch2::test::write_file(temp_path("synth_a_file"), "x");  // a file where the output folder should go
+  CHECK_THROWS_WITH_AS(generate_dataset(models, s, temp_path("synth_a_file")),
+                       doctest::Contains("synth_a_file"), FileError);
   s.sensor.depth_scale_mm = 0;
   CHECK_THROWS_WITH_AS(generate_dataset(models, s, out), doctest::Contains("depth_scale_mm"), InvalidInput);
   SceneSettings bad;

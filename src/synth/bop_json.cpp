@@ -1,10 +1,17 @@
 #include "bop_json.hpp"
 
+#include <filesystem>
 #include <fstream>
 
 #include "perch2/core/error.hpp"
 
 namespace perch2::synth::detail {
+
+void make_folder(const std::string& path) {
+  std::error_code ec;
+  std::filesystem::create_directories(path, ec);
+  if (ec) throw FileError(path, "cannot create the folder: " + ec.message());
+}
 
 void write_bop_json(const std::string& path, const nlohmann::ordered_json& content) {
   std::ofstream f(path);

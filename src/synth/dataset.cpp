@@ -62,7 +62,7 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
   check(s, models);
   const auto t0 = std::chrono::steady_clock::now();
   const fs::path root(out_dir);
-  fs::create_directories(root);
+  detail::make_folder(root.string());
   write_bop_models((root / "models").string(), models);
   const Intrinsics& K = s.sensor.camera;
   write_json(root / "camera.json", json{{"cx", K.cx},
@@ -87,7 +87,7 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
     const Scene scene = compose_scene(models, s.scene, scene_rng);
     const SceneRenderer renderer(models, scene);
     const fs::path dir = root / s.split / id6(scene_id);
-    for (const char* sub : {"rgb", "depth", "mask", "mask_visib"}) fs::create_directories(dir / sub);
+    for (const char* sub : {"rgb", "depth", "mask", "mask_visib"}) detail::make_folder((dir / sub).string());
     std::vector<int> obj_ids;
     for (const auto& o : scene.objects) obj_ids.push_back(models[o.model].obj_id);
     json scene_camera = json::object(), scene_gt = json::object(), scene_gt_info = json::object();

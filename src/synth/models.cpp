@@ -370,7 +370,7 @@ float model_diameter(const Mesh& mesh) {
 }
 
 void write_bop_models(const std::string& dir, const std::vector<ObjectModel>& models) {
-  fs::create_directories(dir);
+  detail::make_folder(dir);
   nlohmann::ordered_json info = nlohmann::ordered_json::object();
   for (const auto& m : models) {
     char name[32];
