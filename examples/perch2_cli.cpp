@@ -2,6 +2,7 @@
 //   perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--stride N]
 //   perch2 render MODEL [--scale S] [--distance M] [--out DIR] [--backend ...]
 //   perch2 eval --dataset DIR --results FILE.csv [...]   (examples/cli/eval.cpp)
+//   perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S --out DIR
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -36,6 +37,9 @@ struct Args {
                "  perch2 render MODEL.{obj,ply} [--scale S] [--distance M] [--out DIR] [--backend ...]\n"
                "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n"
                "  perch2 eval --dataset DIR --results FILE.csv [--json OUT] (perch2 eval --help for more)\n";
+               "  perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S "
+               "--out DIR\n"
+               "      writes a synthetic BOP dataset (built-in or DIR's models) with degraded detections\n";
   std::exit(error.empty() ? 0 : 2);
 }
 
@@ -214,6 +218,12 @@ int run_render(const Args& a) {
 
 int main(int argc, char** argv) {
   if (argc > 1 && std::string(argv[1]) == "eval") return run_eval(argc - 1, argv + 1);
+  try {
+    if (argc > 1 && std::string(argv[1]) == "generate") return run_generate(argc, argv);
+  } catch (const std::exception& e) {
+    std::cerr << "perch2: " << e.what() << "\n";
+    return 1;
+  }
   const Args a = parse(argc, argv);
   try {
     if (a.command == "demo") return run_demo(a);

@@ -1,7 +1,11 @@
-// The perch2 command-line tool's commands, one file each under examples/cli/. Each takes the arguments after
-// the command name (argv[0] is the command) and returns the process exit code.
+// The perch2 command-line tool's commands, one file each under examples/cli/. Each returns the process exit
+// code.
 #pragma once
 
 /// perch2 eval --dataset DIR --results FILE.csv [--split test] [--targets FILE] [--models DIR] [--json OUT]
-///             [--no-vsd]
+///             [--no-vsd]. Takes the arguments after the command name (argv[0] is the command).
 int run_eval(int argc, char** argv);
+
+/// perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S --out DIR.
+/// Takes the whole command line (argv[1] is "generate").
+int run_generate(int argc, char** argv);

@@ -16,6 +16,7 @@
 #include "perch2/cuda/backend.hpp"
 #include "perch2/dataset/results.hpp"
 #include "perch2/eval/metrics.hpp"
+#include "perch2/synth/models.hpp"
 
 namespace {
 
@@ -127,7 +128,9 @@ int main() {
     const bool eval_ok = csv.str() == std::string(perch2::dataset::kBopResultsHeader) + "\n" &&
                          perch2::eval::auc_ycb({0.0}) == 1.0;
     if (!eval_ok) std::printf("consumer: perch2::dataset / perch2::eval gave unexpected results\n");
-    return ok && same && eval_ok ? 0 : 1;
+    const bool synth_ok = !perch2::synth::builtin_models().empty();  // perch2::synth links too
+    if (!synth_ok) std::printf("consumer: perch2::synth has no built-in models\n");
+    return ok && same && eval_ok && synth_ok ? 0 : 1;
   } catch (const std::exception& e) {
     std::printf("consumer: %s\n", e.what());
     return 1;
