@@ -114,8 +114,8 @@ enum PointClass : std::uint8_t { kInlier = 0, kDepthOutlier = 1, kColorOutlier =
 /// Accumulates the neighbours of one point (within delta) and classifies it. Feed every neighbour to
 /// visit(); the result does not depend on the visiting order.
 struct OutlierVote {
-  Lab<float> lab;             ///< the point's colour
-  const Lab<float>* others;   ///< colours of the searched cloud (global index)
+  Lab<float> lab;            ///< the point's colour
+  const Lab<float>* others;  ///< colours of the searched cloud (global index)
   float tau_c;
   bool use_color;
   bool any_rule;
@@ -180,7 +180,12 @@ inline std::vector<Eigen::Vector2f> convex_hull(std::vector<Eigen::Vector2f> pts
     h[k++] = pts[i];
   }
   h.resize(k - 1);
-  return h;
+  // Vertices closer than a micrometre (rounding of one vertex computed twice) would make zero-length edges.
+  std::vector<Eigen::Vector2f> out;
+  for (const auto& p : h)
+    if (out.empty() || (p - out.back()).norm() > 1e-6f) out.push_back(p);
+  while (out.size() > 1 && (out.back() - out.front()).norm() <= 1e-6f) out.pop_back();
+  return out;
 }
 
 /// The prism a model occupies standing on a table: the convex hull of its vertices' x-y in the table-aligned
@@ -206,7 +211,8 @@ namespace cost_detail {
 inline void check_settings(const CostSettings& s) {
   if (!(std::isfinite(s.delta_m) && s.delta_m > 0))
     throw InvalidInput("CostSettings::delta_m", "must be finite and > 0");
-  if (!(std::isfinite(s.tau_c) && s.tau_c >= 0)) throw InvalidInput("CostSettings::tau_c", "must be finite, >= 0");
+  if (!(std::isfinite(s.tau_c) && s.tau_c >= 0))
+    throw InvalidInput("CostSettings::tau_c", "must be finite, >= 0");
   if (s.color_rule != ColorRule::Nearest && s.color_rule != ColorRule::AnyNeighbour)
     throw InvalidInput("CostSettings::color_rule", "unknown value");
   if (s.normalization != Normalization::Counts && s.normalization != Normalization::Fractions)
@@ -256,17 +262,17 @@ inline void validate_cost_request(const CloudBatch& rendered, const CostRequest&
   const std::size_t n = rendered.num_clouds();
   if (n == 0) throw InvalidInput("cost: rendered clouds", "no hypotheses to score");
   if (r.observed_segment.size() != n || r.footprint.size() != n || r.T_cam_volume.size() != n)
-    throw InvalidInput("CostRequest", "needs one observed_segment, footprint and T_cam_volume per rendered "
-                                      "cloud (" + std::to_string(n) + "), got " +
-                                          std::to_string(r.observed_segment.size()) + ", " +
-                                          std::to_string(r.footprint.size()) + ", " +
-                                          std::to_string(r.T_cam_volume.size()));
+    throw InvalidInput("CostRequest",
+                       "needs one observed_segment, footprint and T_cam_volume per rendered "
+                       "cloud (" +
+                           std::to_string(n) + "), got " + std::to_string(r.observed_segment.size()) + ", " +
+                           std::to_string(r.footprint.size()) + ", " + std::to_string(r.T_cam_volume.size()));
   for (std::size_t i = 0; i < r.footprints.size(); ++i) cost_detail::check_footprint(r.footprints[i], i);
   for (std::size_t h = 0; h < n; ++h) {
     const std::string who = "CostRequest hypothesis " + std::to_string(h);
     if (r.observed_segment[h] < 0 || std::size_t(r.observed_segment[h]) >= num_segments)
-      throw InvalidInput(who, "observed segment " + std::to_string(r.observed_segment[h]) + " out of range (" +
-                                  std::to_string(num_segments) + " segments)");
+      throw InvalidInput(who, "observed segment " + std::to_string(r.observed_segment[h]) +
+                                  " out of range (" + std::to_string(num_segments) + " segments)");
     if (r.footprint[h] < -1 || r.footprint[h] >= std::int32_t(r.footprints.size()))
       throw InvalidInput(who, "footprint " + std::to_string(r.footprint[h]) + " out of range (" +
                                   std::to_string(r.footprints.size()) + " footprints, -1 = whole segment)");
