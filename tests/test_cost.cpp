@@ -109,7 +109,7 @@ TEST_CASE_TEMPLATE("J_o counts only observed points inside the hypothesis' volum
   const typename B::Cost cost(observed);
   const CloudBatch rendered = batch({patch(0.f, 1.f, kRed), patch(0.f, 1.f, kRed), patch(0.f, 1.f, kRed)});
   CostRequest req;
-  req.footprints = {square(-0.01f, 0.03f, -0.01f, 0.03f, 0.95f, 1.05f),  // around the first patch only
+  req.footprints = {square(-0.01f, 0.03f, -0.01f, 0.03f, 0.95f, 1.05f),   // around the first patch only
                     square(-0.01f, 0.09f, -0.01f, 0.03f, 0.95f, 1.05f)};  // around both
   req.add(0, 0, Pose::Identity());
   req.add(0, 1, Pose::Identity());

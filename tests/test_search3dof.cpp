@@ -238,6 +238,14 @@ TEST_CASE("an occluded can is found with occluder marking, and worse or not at a
                                                   << " m; visible points "
                                                   << with.poses[0].cost.rendered_points);
   CHECK(e > xy_error(with.poses[0], rx, ry) + 0.01f);  // missed, or placed at least 1 cm worse
+  // The Monotone Scene Generation tree handles the occlusion its own way: the green can is placed first and
+  // hides the red one when that is rendered at the next level.
+  const TabletopResult tree =
+      TabletopEstimator<cpu::Backend>(can_models(), tabletop_variant(SearchVariant::Perch2B))
+          .estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
+  REQUIRE(tree.poses.size() == 2);
+  CHECK(xy_error(*pose_of(tree, 0), rx, ry) < 0.01f);
+  CHECK(xy_error(*pose_of(tree, 1), 0.f, -0.03f) < 0.01f);
 }
 
 TEST_CASE("the tree (PERCH 2.0-B), PERCH and BF-ICP variants run on the same scene") {
@@ -358,6 +366,12 @@ TEST_CASE("the tabletop search rejects bad input with a clear error") {
   REQUIRE(r.missing.size() == 1);
   CHECK(r.missing[0].model == 0);
   CHECK(r.missing[0].count == 1);
+  CHECK(estimator.model_index("green_can") == 1);
+  CHECK_THROWS_WITH_AS(estimator.model_index("blue_can"), doctest::Contains("blue_can"), InvalidInput);
+  TabletopSettings outside;
+  outside.workspace_xy_m = Eigen::AlignedBox2f();  // empty
+  CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>(can_models(), outside).estimate(frame, {{0, 1}}, T),
+                       doctest::Contains("workspace_xy_m"), InvalidInput);
   // Models.
   CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>({}), doctest::Contains("no models"), InvalidInput);
   Pose bad = Pose::Identity();

@@ -94,9 +94,13 @@ struct TabletopSettings {
   /// table (between min_height_m and max_height_m), grown by workspace_margin_m.
   std::optional<Eigen::AlignedBox2f> workspace_xy_m;
   float workspace_margin_m = 0.02f;  ///< see workspace_xy_m, metres
-  float min_height_m = 0.01f;        ///< readings higher than this above the table belong to objects, metres;
+  /// Automatic workspace only: also clip it to the bounding box of the table readings (within
+  /// min_height_m of z = 0) grown by workspace_margin_m, so walls or shelves above the table's height
+  /// elsewhere in the room do not spread the grid.
+  bool clip_workspace_to_table = true;
+  float min_height_m = 0.01f;  ///< readings higher than this above the table belong to objects, metres;
                                ///< also the floor of each hypothesis' J_o volume (table noise stays out)
-  float max_height_m = 0.6f;  ///< readings higher than this above the table are ignored, metres
+  float max_height_m = 0.6f;   ///< readings higher than this above the table are ignored, metres
   /// A grid position is kept only if this many object readings lie within (footprint circumradius +
   /// support_margin_m) of it in the table plane.
   int min_support_points = 10;
@@ -259,6 +263,13 @@ class TabletopEstimator {
   TabletopSettings& settings() { return settings_; }
   const std::vector<TabletopModel>& models() const { return models_; }
 
+  /// Index of the model whose mesh is called `name`. Throws InvalidInput if there is none.
+  int model_index(const std::string& name) const {
+    for (std::size_t i = 0; i < models_.size(); ++i)
+      if (models_[i].mesh.name == name) return int(i);
+    throw InvalidInput("model name", "no model called '" + name + "'");
+  }
+
   /// Estimates the poses of the requested objects in one frame. T_cam_world (table frame -> camera) is
   /// estimated from the depth when not given. Throws InvalidInput on a malformed frame (sizes, NaN depth),
   /// missing colour for the RGB-D cost, an unknown model, no table visible, an empty scene, and (strict
@@ -340,6 +351,9 @@ class TabletopEstimator {
     if (!(s.min_height_m >= 0 && s.max_height_m > s.min_height_m))
       throw InvalidInput("TabletopSettings", "needs 0 <= min_height_m < max_height_m");
     if (s.score_stride < 1) throw InvalidInput("TabletopSettings::score_stride", "must be >= 1");
+    if (s.workspace_xy_m && (s.workspace_xy_m->isEmpty() || !s.workspace_xy_m->min().allFinite() ||
+                             !s.workspace_xy_m->max().allFinite()))
+      throw InvalidInput("TabletopSettings::workspace_xy_m", "must be a finite, non-empty box");
     if (!(s.support_margin_m >= 0) || !(s.workspace_margin_m >= 0) || !(s.overlap_tolerance_m >= 0))
       throw InvalidInput("TabletopSettings", "margins and tolerances must be >= 0");
     frame.validate("tabletop frame");
@@ -366,11 +380,13 @@ class TabletopEstimator {
     f.observed = observed_cloud(f.rgbd, s.observed);
     const Pose T_world_cam = f.T_cam_world.inverse();
     std::vector<char> above(f.observed.size());
+    Eigen::AlignedBox2f table_box;
     for (std::size_t i = 0; i < f.observed.size(); ++i) {
       const Eigen::Vector3f p =
           T_world_cam * Eigen::Vector3f(f.observed.x[i], f.observed.y[i], f.observed.z[i]);
       above[i] = p.z() > s.min_height_m && p.z() <= s.max_height_m;
       if (above[i]) f.object_xy.emplace_back(p.x(), p.y()), f.workspace.extend(f.object_xy.back());
+      if (std::abs(p.z()) <= s.min_height_m) table_box.extend(Eigen::Vector2f(p.x(), p.y()));
     }
     if (f.object_xy.empty())
       throw InvalidInput("tabletop frame", "empty scene: no depth reading between " +
@@ -382,6 +398,11 @@ class TabletopEstimator {
     } else {
       f.workspace.min().array() -= s.workspace_margin_m;
       f.workspace.max().array() += s.workspace_margin_m;
+      if (s.clip_workspace_to_table && !table_box.isEmpty()) {
+        table_box.min().array() -= s.workspace_margin_m;
+        table_box.max().array() += s.workspace_margin_m;
+        if (table_box.intersects(f.workspace)) f.workspace = f.workspace.intersection(table_box);
+      }
     }
     f.cost.emplace(f.observed);
     f.registration.emplace(f.objects);
