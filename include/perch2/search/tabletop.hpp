@@ -326,6 +326,7 @@ class TabletopEstimator {
 
   /// Per-frame state.
   struct Frame {
+    explicit Frame(const RgbdFrame& f) : rgbd(f) {}
     const RgbdFrame& rgbd;
     Pose T_cam_world = Pose::Identity();
     CloudBatch observed;                     ///< scored against (whole frame at settings.observed)
