@@ -141,7 +141,9 @@ const TabletopPose* pose_of(const TabletopResult& r, int model, int instance = 0
 TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-label models", B,
                    PERCH2_CPU_RUNNABLE_BACKENDS) {
   const RgbdFrame frame = render_scene(can_meshes(), {{0, 0.08f, 0.06f, 0.3f}, {1, -0.09f, -0.02f, 1.1f}});
-  const TabletopEstimator<B> estimator(can_models());
+  TabletopSettings settings;
+  settings.keep_scored = true;
+  const TabletopEstimator<B> estimator(can_models(), settings);
   const TabletopResult r = estimator.estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
   REQUIRE(r.poses.size() == 2);
   const TabletopPose* red = pose_of(r, 0);
@@ -154,6 +156,12 @@ TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-
   CHECK(red->cost.rendered_inliers > int(0.9f * float(red->cost.rendered_points)));
   CHECK(r.hypotheses_grid > r.hypotheses_kept);
   CHECK(r.hypotheses_kept == r.hypotheses_scored);
+  // The chosen pose is the lowest-cost acceptable one among the scored hypotheses of its model.
+  REQUIRE(r.scored.size() == r.hypotheses_scored);
+  for (const auto& h : r.scored)
+    if (h.model == 0 && h.cost.rendered_points >= settings.min_rendered_points &&
+        h.cost.rendered_inliers >= settings.min_inlier_fraction * float(h.cost.rendered_points))
+      CHECK(h.cost.total >= red->cost.total);
   CHECK(r.timings.total > 0);
   // Poses are on the table: T_cam_obj = T_cam_world * T_world_obj, upright.
   CHECK((r.T_cam_world * red->T_world_obj).isApprox(red->T_cam_obj, 1e-4f));
@@ -366,6 +374,11 @@ TEST_CASE("the tabletop search rejects bad input with a clear error") {
   REQUIRE(r.missing.size() == 1);
   CHECK(r.missing[0].model == 0);
   CHECK(r.missing[0].count == 1);
+  Pose upside_down = T * on_table(0.f, 0.f, 0.f);
+  upside_down.linear() =
+      T.linear() * Eigen::AngleAxisf(3.14159265f, Eigen::Vector3f::UnitX()).toRotationMatrix();
+  CHECK_THROWS_WITH_AS(estimator.estimate(frame, {{0, 1}}, upside_down), doctest::Contains("below the table"),
+                       InvalidInput);
   CHECK(estimator.model_index("green_can") == 1);
   CHECK_THROWS_WITH_AS(estimator.model_index("blue_can"), doctest::Contains("blue_can"), InvalidInput);
   TabletopSettings outside;

@@ -131,6 +131,9 @@ struct TabletopSettings {
   /// Fewer acceptable, non-overlapping poses than requested instances: throw InvalidInput (true) or return
   /// the poses found and list the shortfall in TabletopResult::missing (false; e.g. for batch evaluation).
   bool strict_instances = true;
+  /// Return every scored hypothesis (pose + cost) in TabletopResult::scored, e.g. to inspect the cost
+  /// landscape or draw it; off by default (thousands of entries).
+  bool keep_scored = false;
 
   TablePlaneSettings table;  ///< used when no table frame is given
 };
@@ -170,6 +173,9 @@ struct TabletopResult {
   std::size_t hypotheses_kept = 0;    ///< ... with enough observed support
   std::size_t hypotheses_scored = 0;  ///< scored (Tree mode: summed over levels)
   std::vector<ObjectCount> missing;   ///< non-strict mode: instances requested but not found
+  /// With TabletopSettings::keep_scored: every scored hypothesis after refinement (Tree mode: every level),
+  /// instance = -1; score as in TabletopPose.
+  std::vector<TabletopPose> scored;
   TabletopTimings timings;
 };
 
@@ -285,6 +291,10 @@ class TabletopEstimator {
     if (T_cam_world) {
       if (!is_valid_pose(*T_cam_world)) throw InvalidInput("T_cam_world", "is not a finite rigid transform");
       f.T_cam_world = *T_cam_world;
+      if (!(f.T_cam_world.inverse().translation().z() > 0))
+        throw InvalidInput("T_cam_world",
+                           "puts the camera at or below the table plane (the table frame's z "
+                           "must point up, towards the camera)");
     } else {
       f.T_cam_world = estimate_table_plane(frame, settings_.table).T_cam_world;
       result.table_estimated = true;
@@ -522,6 +532,13 @@ class TabletopEstimator {
     return p;
   }
 
+  void keep_scored(const Frame& f, const std::vector<Candidate>& cands, const std::vector<float>& scores,
+                   const std::vector<CostBreakdown>& costs, TabletopResult& result) const {
+    if (!settings_.keep_scored) return;
+    for (std::size_t h = 0; h < cands.size(); ++h)
+      result.scored.push_back(make_pose(f, cands[h], -1, scores[h], costs[h]));
+  }
+
   /// Parallel (and BF-ICP) search: every candidate refined and scored at once; per model the best `count`
   /// acceptable, non-overlapping ones by score.
   void search_parallel(const Frame& f, const std::vector<ObjectCount>& objects, std::vector<Candidate> cands,
@@ -551,6 +568,7 @@ class TabletopEstimator {
         for (std::size_t h = 0; h < cands.size(); ++h) scores[h] = costs[h].total;
       }
       result.hypotheses_scored += cands.size();
+      keep_scored(f, cands, scores, costs, result);
     }
     const auto t = Clock::now();
     std::vector<std::size_t> order(cands.size());
@@ -619,6 +637,9 @@ class TabletopEstimator {
           all, [&](std::size_t i) { return !hides(occ.depth_m.data[std::size_t(all.pixel[i])], all.z[i]); });
       const std::vector<CostBreakdown> costs = score(f, cands, visible, result.timings);
       result.hypotheses_scored += cands.size();
+      std::vector<float> totals(costs.size());
+      for (std::size_t h = 0; h < costs.size(); ++h) totals[h] = costs[h].total;
+      keep_scored(f, cands, totals, costs, result);
 
       const auto t = Clock::now();
       std::ptrdiff_t best = -1;
