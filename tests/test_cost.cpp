@@ -141,6 +141,7 @@ TEST_CASE_TEMPLATE("colour rules: the nearest neighbour decides, or any neighbou
   rendered.rgb.push_back(kRed), rendered.pixel.push_back(-1), rendered.cloud.push_back(0);
   rendered.offsets = {0, 2};
   CostSettings nearest, any;
+  nearest.color_rule = ColorRule::Nearest;
   any.color_rule = ColorRule::AnyNeighbour;
   const CostBreakdown n = cost.evaluate(rendered, whole_segment(1), nearest).hypotheses[0];
   const CostBreakdown a = cost.evaluate(rendered, whole_segment(1), any).hypotheses[0];

@@ -12,7 +12,8 @@ using namespace perch2;
 namespace {
 
 constexpr float kCanRadius = 0.033f, kCanHeight = 0.12f;
-constexpr Rgb8 kRed{200, 30, 30}, kGreen{30, 160, 60}, kWhite{235, 235, 235}, kWood{150, 110, 70};
+constexpr Rgb8 kRed{200, 30, 30}, kYellow{230, 200, 40}, kGreen{30, 160, 60}, kBlue{40, 60, 190};
+constexpr Rgb8 kWhite{235, 235, 235}, kWood{150, 110, 70};
 
 /// A table top: a size x size square at z = 0 facing +z, as a 10 x 10 grid of quads.
 Mesh make_table(float size) {
@@ -31,9 +32,10 @@ Mesh make_table(float size) {
   return m;
 }
 
-/// A closed can standing on z = 0 (axis z): a label of four stripes alternating `label` and white (so its
-/// appearance depends on yaw), a white top and bottom. Every side facet has its own vertices: crisp colours.
-Mesh make_can(Rgb8 label, const std::string& name, int segments = 24) {
+/// A closed can standing on z = 0 (axis z): a label of four stripes alternating `label` and `second` (so
+/// its appearance depends on yaw), a white top and bottom (shared by all cans, like real cans' lids). Every
+/// side facet has its own vertices: crisp colours.
+Mesh make_can(Rgb8 label, Rgb8 second, const std::string& name, int segments = 24) {
   Mesh m;
   m.name = name;
   const float pi = 3.14159265f;
@@ -42,7 +44,7 @@ Mesh make_can(Rgb8 label, const std::string& name, int segments = 24) {
     return Eigen::Vector3f(kCanRadius * std::cos(a), kCanRadius * std::sin(a), z);
   };
   for (int k = 0; k < segments; ++k) {
-    const Rgb8 c = (k * 4 / segments) % 2 == 0 ? label : kWhite;
+    const Rgb8 c = (k * 4 / segments) % 2 == 0 ? label : second;
     const int b = int(m.vertices.size());
     m.vertices.push_back(ring(k, 0.f)), m.vertices.push_back(ring(k + 1, 0.f));
     m.vertices.push_back(ring(k + 1, kCanHeight)), m.vertices.push_back(ring(k, kCanHeight));
@@ -118,12 +120,12 @@ RgbdFrame render_scene(const std::vector<Mesh>& meshes, const std::vector<Placed
 }
 
 std::vector<TabletopModel> can_models() {
-  return {{make_can(kRed, "red_can")}, {make_can(kGreen, "green_can")}};
+  return {{make_can(kRed, kYellow, "red_can")}, {make_can(kGreen, kBlue, "green_can")}};
 }
 
 /// The scene's meshes (same indices as can_models()).
 std::vector<Mesh> can_meshes() {
-  return {make_can(kRed, "red_can"), make_can(kGreen, "green_can")};
+  return {make_can(kRed, kYellow, "red_can"), make_can(kGreen, kBlue, "green_can")};
 }
 
 float xy_error(const TabletopPose& p, float x, float y) {
@@ -203,13 +205,13 @@ TEST_CASE("the depth-only cost cannot tell same-shape cans apart; the RGB-D cost
   CHECK(c.hypotheses[1].total > 0.5f * n);
   CHECK(c.hypotheses[1].rendered_color_outliers > int(0.4f * n));
   // Both colour rules separate them.
-  CostSettings any;
-  any.color_rule = ColorRule::AnyNeighbour;
-  const CostResult a = cost.evaluate(rendered, req, any);
+  CostSettings other;
+  other.color_rule = ColorRule::Nearest;
+  const CostResult a = cost.evaluate(rendered, req, other);
   CHECK(a.hypotheses[1].total > a.hypotheses[0].total + 0.3f * n);
   MESSAGE("red can at red / green place: depth-only "
-          << d.hypotheses[0].total << " / " << d.hypotheses[1].total << ", RGB-D nearest "
-          << c.hypotheses[0].total << " / " << c.hypotheses[1].total << ", RGB-D any "
+          << d.hypotheses[0].total << " / " << d.hypotheses[1].total << ", RGB-D any "
+          << c.hypotheses[0].total << " / " << c.hypotheses[1].total << ", RGB-D nearest "
           << a.hypotheses[0].total << " / " << a.hypotheses[1].total << " (" << n << " points)");
 }
 
@@ -389,6 +391,22 @@ TEST_CASE("the tabletop search rejects bad input with a clear error") {
   CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>({}), doctest::Contains("no models"), InvalidInput);
   Pose bad = Pose::Identity();
   bad.translation().x() = std::nanf("");
-  CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>({{make_can(kRed, "c"), false, bad}}),
+  CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>({{make_can(kRed, kYellow, "c"), false, bad}}),
                        doctest::Contains("T_place_obj"), InvalidInput);
+}
+
+TEST_CASE("both colour rules find the right cans") {
+  const RgbdFrame frame = render_scene(can_meshes(), {{0, 0.08f, 0.06f, 0.3f}, {1, -0.09f, -0.02f, 1.1f}});
+  for (const ColorRule rule : {ColorRule::Nearest, ColorRule::AnyNeighbour}) {
+    TabletopSettings s;
+    s.cost.color_rule = rule;
+    const TabletopResult r = TabletopEstimator<thrust_omp::Backend>(can_models(), s)
+                                 .estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
+    REQUIRE(r.poses.size() == 2);
+    CHECK(xy_error(*pose_of(r, 0), 0.08f, 0.06f) < 0.01f);
+    CHECK(xy_error(*pose_of(r, 1), -0.09f, -0.02f) < 0.01f);
+    MESSAGE(std::string(rule == ColorRule::Nearest ? "nearest" : "any")
+            << ": costs " << pose_of(r, 0)->cost.total << ", " << pose_of(r, 1)->cost.total << "; cost stage "
+            << r.timings.cost << " s");
+  }
 }

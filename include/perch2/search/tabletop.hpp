@@ -11,6 +11,21 @@
 // placement frame; default: the model's own z axis up and its lowest vertex on the table); a hypothesis is
 // T_world_obj = Trans(x, y, 0) * RotZ(yaw) * T_place_obj.
 //
+// Pipeline per frame (timed per stage in TabletopResult::timings):
+//   table     T_cam_world given, or estimate_table_plane() (RANSAC on the depth)
+//   observed  the frame's points at settings.observed (stride 2); those between min_height_m and
+//             max_height_m above the table are the object readings (ICP target, support, workspace)
+//   grid      x, y every xy_step_m over the workspace, yaw every yaw_step_rad (one yaw if yaw_symmetric);
+//             a position needs min_support_points object readings within the footprint's circumradius +
+//             support_margin_m
+//   render    every hypothesis at render.stride, occluders marked from the observed depth (C-PERCH)
+//   refine    (x, y, yaw) ICP against the object readings (Dof::TableXYYaw), then back onto the grid's
+//             manifold exactly
+//   cost      re-rendered at score_stride and scored (perch2/cost/cost.hpp); J_o's volume is the model's
+//             convex footprint prism from min_height_m to its top, posed by the hypothesis
+//   select    per model, the lowest-cost acceptable poses (min_rendered_points, min_inlier_fraction) whose
+//             footprints do not interpenetrate by more than overlap_tolerance_m, `count` of them
+//
 // Variants (the paper's Table I, see tabletop_variant()):
 //   Perch2C  parallel per-object search, occluders marked from the observed depth, RGB-D cost (default)
 //   Perch2A  as C without occluder marking
@@ -19,7 +34,8 @@
 //            the single best placement (a beam of width 1, not PERCH's full tree search).
 //   Perch    as B with the depth-only cost (PERCH)
 //   DepthOnlyC  as C with the depth-only cost
-//   BfIcp    brute-force ICP baseline: every grid hypothesis refined by ICP, the best ICP fitness wins
+//   BfIcp    brute-force ICP baseline (PERCH's): every grid hypothesis' visible surface refined by ICP; the
+//            lowest truncated mean squared correspondence distance wins (no rendering cost)
 #pragma once
 
 #include <Eigen/Geometry>
