@@ -291,3 +291,16 @@ TEST_CASE_TEMPLATE("cost rejects bad input with a clear error", B, PERCH2_CPU_RU
   CHECK_THROWS_WITH_AS(typename B::Cost{nan_observed}, doctest::Contains("observed cloud"), InvalidInput);
   CHECK_THROWS_WITH_AS(typename B::Cost{CloudBatch{}}, doctest::Contains("no segments"), InvalidInput);
 }
+
+TEST_CASE(
+    "CIEDE2000's lightness factor: kL = 1 is the reference formula, kL = 2 halves pure lightness steps") {
+  const Lab<float> grey{50.f, 0.f, 0.f}, lighter{60.f, 0.f, 0.f}, red{50.f, 60.f, 30.f};
+  CHECK(ciede2000<float>(grey, red, 1.f) == ciede2000<float>(grey, red));
+  // Equal (zero) chroma: Delta E = |Delta L| / (kL S_L).
+  CHECK(ciede2000<float>(grey, lighter, 2.f) == doctest::Approx(0.5f * ciede2000<float>(grey, lighter)));
+  CostSettings s;
+  s.lightness_factor = 0.5f;
+  const cpu::Cost cost(patch(0.f, 1.f, kRed));
+  CHECK_THROWS_WITH_AS(cost.evaluate(batch({patch(0.f, 1.f, kRed)}), whole_segment(1), s),
+                       doctest::Contains("lightness_factor"), InvalidInput);
+}

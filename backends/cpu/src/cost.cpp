@@ -36,8 +36,9 @@ std::vector<std::uint8_t> classify(const KnnIndex& index, const CloudBatch& quer
     const RadiusResult r = index.radius(chunk, seg, s.delta_m);
 #pragma omp parallel for schedule(static)
     for (std::int64_t i = 0; i < e - b; ++i) {
-      OutlierVote vote{query_lab[std::size_t(b + i)], target_lab.data(), s.tau_c, s.use_color,
-                       s.color_rule == ColorRule::AnyNeighbour};
+      OutlierVote vote{
+          query_lab[std::size_t(b + i)],          target_lab.data(), s.tau_c, s.lightness_factor, s.use_color,
+          s.color_rule == ColorRule::AnyNeighbour};
       for (std::int64_t j = r.offsets[std::size_t(i)]; j < r.offsets[std::size_t(i) + 1]; ++j)
         vote(r.index[std::size_t(j)], r.sq_distance_m2[std::size_t(j)]);
       out[std::size_t(b + i)] = vote.result();
@@ -88,8 +89,8 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
     const std::size_t seg = std::size_t(request.observed_segment[std::size_t(h)]);
     for (std::int64_t i = m.observed.offsets[seg]; i < m.observed.offsets[seg + 1]; ++i) {
       const Vec3f p = m.observed.point(std::size_t(i));
-      if (v.radius_m < 0.f ||
-          (knn_sq_distance(p, v.centre_cam) <= v.radius_m * v.radius_m && inside_volume(v, vol.vertices.data(), p)))
+      if (v.radius_m < 0.f || (knn_sq_distance(p, v.centre_cam) <= v.radius_m * v.radius_m &&
+                               inside_volume(v, vol.vertices.data(), p)))
         inside[std::size_t(h)].push_back(std::int32_t(i));
     }
   }

@@ -35,13 +35,13 @@ struct Side {
 };
 
 struct VoteParams {
-  float delta_m, tau_c;
+  float delta_m, tau_c, kL;
   bool use_color, any_rule;
 };
 
 PERCH2_HD inline std::uint8_t classify(const Side& other, int segment, Vec3f p, Lab<float> lab,
                                        const VoteParams& s) {
-  OutlierVote vote{lab, other.lab, s.tau_c, s.use_color, s.any_rule};
+  OutlierVote vote{lab, other.lab, s.tau_c, s.kL, s.use_color, s.any_rule};
   grid_radius_visit(other.grid, segment, p, s.delta_m, vote);
   return vote.result();
 }
@@ -186,7 +186,8 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   validate_cost_request(rendered, request, num_segments(), s);
   const std::int64_t n = std::int64_t(rendered.num_clouds());
   const std::int64_t nr = std::int64_t(rendered.size());
-  const VoteParams params{s.delta_m, s.tau_c, s.use_color, s.color_rule == ColorRule::AnyNeighbour};
+  const VoteParams params{s.delta_m, s.tau_c, s.lightness_factor, s.use_color,
+                          s.color_rule == ColorRule::AnyNeighbour};
   const thrust::counting_iterator<std::int64_t> first(0);
 
   // Rendered points, colours and a grid over them (one segment per hypothesis).
@@ -209,8 +210,8 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   const thrust::device_vector<VolumeView> volumes = to_device(packed.views);
   const thrust::device_vector<Vec2f> vertices = to_device(packed.vertices);
   thrust::device_vector<std::int64_t> pair_offsets(static_cast<std::size_t>(n) + 1, 0);
-  VolumePoints lister{m.index.view().grid, ptr(m.points), ptr(m.offsets), ptr(volumes), ptr(vertices),
-                      ptr(seg),           nullptr,        nullptr};
+  VolumePoints lister{m.index.view().grid, ptr(m.points), ptr(m.offsets), ptr(volumes),
+                      ptr(vertices),       ptr(seg),      nullptr,        nullptr};
   thrust::transform(thrust::device, first, first + n, ptr(pair_offsets) + 1, lister);
   thrust::inclusive_scan(thrust::device, ptr(pair_offsets) + 1, ptr(pair_offsets) + n + 1,
                          ptr(pair_offsets) + 1);
