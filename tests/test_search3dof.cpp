@@ -387,6 +387,10 @@ TEST_CASE("the tabletop search rejects bad input with a clear error") {
   outside.workspace_xy_m = Eigen::AlignedBox2f();  // empty
   CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>(can_models(), outside).estimate(frame, {{0, 1}}, T),
                        doctest::Contains("workspace_xy_m"), InvalidInput);
+  TabletopSettings huge;
+  huge.workspace_xy_m = Eigen::AlignedBox2f(Eigen::Vector2f(-1e3f, -1e3f), Eigen::Vector2f(1e3f, 1e3f));
+  CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>(can_models(), huge).estimate(frame, {{0, 1}}, T),
+                       doctest::Contains("grid positions"), InvalidInput);
   // Models.
   CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>({}), doctest::Contains("no models"), InvalidInput);
   Pose bad = Pose::Identity();

@@ -441,6 +441,11 @@ class TabletopEstimator {
     const Eigen::Vector2f lo = f.workspace.min(), hi = f.workspace.max();
     const int nx = int(std::floor((hi.x() - lo.x()) / s.xy_step_m)) + 1;
     const int ny = int(std::floor((hi.y() - lo.y()) / s.xy_step_m)) + 1;
+    if (double(nx) * double(ny) > 1e6)
+      throw InvalidInput("tabletop workspace",
+                         "spans " + std::to_string(nx) + " x " + std::to_string(ny) +
+                             " grid positions (over a million): give workspace_xy_m or a "
+                             "larger xy_step_m");
     const Eigen::Vector2f c = f.workspace.center();
     const int nyaw =
         models_[model].yaw_symmetric ? 1 : std::max(1, int(std::lround(kTwoPi / s.yaw_step_rad)));
