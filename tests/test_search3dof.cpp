@@ -162,6 +162,7 @@ TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-
   REQUIRE(r.scored.size() == r.hypotheses_scored);
   for (const auto& h : r.scored)
     if (h.model == 0 && h.cost.rendered_points >= settings.min_rendered_points &&
+        h.cost.observed_in_volume >= settings.min_observed_in_volume &&
         h.cost.rendered_inliers >= settings.min_inlier_fraction * float(h.cost.rendered_points))
       CHECK(h.cost.total >= red->cost.total);
   CHECK(r.timings.total > 0);

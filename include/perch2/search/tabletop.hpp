@@ -140,6 +140,10 @@ struct TabletopSettings {
   // ---- selection
   int min_rendered_points = 10;      ///< a pose must show at least this many points at score_stride
   float min_inlier_fraction = 0.5f;  ///< ... and explain this fraction of them (rendered inliers / rendered)
+  /// ... and hold at least this many observed readings in its volume: a hypothesis hidden behind another
+  /// object shows a few points and has an empty volume, so its raw-count cost would be near 0 (not used by
+  /// BruteForceIcp, which has no volume).
+  int min_observed_in_volume = 10;
   /// Two footprints overlap when they interpenetrate by more than this (separating-axis depth), metres.
   float overlap_tolerance_m = 0.01f;
   /// Tree mode: a placement may hide at most this fraction of its points' pixels of objects already placed.
@@ -533,6 +537,9 @@ class TabletopEstimator {
   }
 
   bool acceptable(const CostBreakdown& b) const {
+    if (settings_.mode != SearchMode::BruteForceIcp &&
+        b.observed_in_volume < settings_.min_observed_in_volume)
+      return false;
     return b.rendered_points >= settings_.min_rendered_points &&
            float(b.rendered_inliers) >= settings_.min_inlier_fraction * float(b.rendered_points);
   }
