@@ -173,6 +173,8 @@ PERCH2_HD inline bool inside_volume(const VolumeView& v, const Vec2f* vertices, 
 
 // ---- host helpers shared by every backend --------------------------------------------------------------
 
+namespace cost_detail {
+
 /// Convex hull (counter-clockwise, no collinear points) of 2-D points (Andrew's monotone chain).
 inline std::vector<Eigen::Vector2f> convex_hull(std::vector<Eigen::Vector2f> pts) {
   std::sort(pts.begin(), pts.end(), [](const Eigen::Vector2f& a, const Eigen::Vector2f& b) {
@@ -202,6 +204,8 @@ inline std::vector<Eigen::Vector2f> convex_hull(std::vector<Eigen::Vector2f> pts
   return out;
 }
 
+}  // namespace cost_detail
+
 /// The prism a model occupies standing on a table: the convex hull of its vertices' x-y in the table-aligned
 /// frame T_place_obj (object -> placement frame, z up, table at z = 0), from z_floor_m (above the table, so
 /// table readings never count) to the model's top.
@@ -214,7 +218,7 @@ inline Footprint table_footprint(const Mesh& model, const Pose& T_place_obj, flo
     top = std::max(top, p.z());
   }
   Footprint f;
-  f.polygon_xy_m = convex_hull(std::move(xy));
+  f.polygon_xy_m = cost_detail::convex_hull(std::move(xy));
   f.z_min_m = z_floor_m;
   f.z_max_m = top;
   return f;
