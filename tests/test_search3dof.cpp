@@ -454,3 +454,38 @@ TEST_CASE("the default search survives depth noise, darker lighting and colour n
                                 << " points), " << pose_of(r, 1)->cost.total << " ("
                                 << pose_of(r, 1)->cost.rendered_points << " points)");
 }
+
+TEST_CASE("a model whose axis is not z: rest pose from an example placement, found on the table") {
+  // The can modelled with its axis along x (as many scanned models are): the default rest pose (model z up)
+  // would lay it down, so the rest pose comes from an example pose of it standing on the table.
+  Mesh sideways = make_can(kRed, kYellow, "red_can");
+  const Eigen::Matrix3f R =
+      Eigen::AngleAxisf(0.5f * 3.14159265f, Eigen::Vector3f::UnitY()).toRotationMatrix();
+  for (auto& v : sideways.vertices) v = R * v;  // axis now along +x of the model frame
+  // The can standing upright at (0.05, 0.04) with yaw 0.7: T_world_obj maps the model's +x to world +z.
+  Pose T_world_obj = on_table(0.05f, 0.04f, 0.7f);
+  T_world_obj.linear() = T_world_obj.linear() * R.transpose();
+  const Pose rest = rest_pose_from(T_world_obj);
+  CHECK(is_valid_pose(rest));
+  CHECK((rest.linear() * Eigen::Vector3f::UnitX()).z() == doctest::Approx(1.f));  // model +x is table up
+  CHECK(rest.translation().head<2>().norm() < 1e-5f);
+  const cpu::Renderer renderer({sideways, make_table(1.2f)});
+  RgbdFrame frame;
+  frame.camera = small_camera();
+  frame.depth_m = DepthImage(frame.camera.width, frame.camera.height, 0.f);
+  frame.rgb = ColorImage(frame.camera.width, frame.camera.height, Rgb8{0, 0, 0});
+  RenderSettings rs;
+  rs.stride = 1;
+  const Pose T = camera_pose();
+  const CloudBatch c = renderer.render({{0, T * T_world_obj, -1}, {1, T, -1}}, frame.camera, rs);
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    float& d = frame.depth_m.data[std::size_t(c.pixel[i])];
+    if (d == 0.f || c.z[i] < d) d = c.z[i], frame.rgb.data[std::size_t(c.pixel[i])] = unpack_rgb(c.rgb[i]);
+  }
+  const TabletopResult r =
+      TabletopEstimator<cpu::Backend>({{sideways, false, rest}}).estimate(frame, {{0, 1}}, T);
+  REQUIRE(r.poses.size() == 1);
+  CHECK((r.poses[0].T_world_obj.translation() - T_world_obj.translation()).norm() < 0.01f);
+  CHECK((r.poses[0].T_world_obj.linear() * Eigen::Vector3f::UnitX()).z() ==
+        doctest::Approx(1.f).epsilon(1e-3));
+}

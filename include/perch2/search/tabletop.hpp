@@ -199,6 +199,21 @@ struct TabletopResult {
   TabletopTimings timings;
 };
 
+/// The rest pose T_place_obj of a model from any pose T_world_obj in which it stands on the table (e.g. a
+/// dataset's ground truth or a generator's placement): the pose with its table-plane position and its yaw
+/// removed, keeping its height, roll and pitch. Yaw is measured by the object's x axis projected onto the
+/// table (its y axis if x is vertical). Then T_world_obj = Trans(x, y, 0) * RotZ(yaw) * T_place_obj.
+inline Pose rest_pose_from(const Pose& T_world_obj) {
+  Eigen::Vector3f axis = T_world_obj.linear().col(0);
+  if (Eigen::Vector2f(axis.x(), axis.y()).norm() < 1e-3f) axis = T_world_obj.linear().col(1);
+  const float yaw = std::atan2(axis.y(), axis.x());
+  Pose T_world_place = Pose::Identity();
+  T_world_place.linear() = Eigen::AngleAxisf(yaw, Eigen::Vector3f::UnitZ()).toRotationMatrix();
+  T_world_place.translation() =
+      Eigen::Vector3f(T_world_obj.translation().x(), T_world_obj.translation().y(), 0.f);
+  return T_world_place.inverse() * T_world_obj;
+}
+
 namespace tabletop_detail {
 
 using Clock = std::chrono::steady_clock;
