@@ -5,6 +5,7 @@
 #include <random>
 
 #include "perch2/search/tabletop.hpp"
+#include "render_fixtures.hpp"
 #include "test_support.hpp"
 
 using namespace perch2;
@@ -488,4 +489,22 @@ TEST_CASE("a model whose axis is not z: rest pose from an example placement, fou
   CHECK((r.poses[0].T_world_obj.translation() - T_world_obj.translation()).norm() < 0.01f);
   CHECK((r.poses[0].T_world_obj.linear() * Eigen::Vector3f::UnitX()).z() ==
         doctest::Approx(1.f).epsilon(1e-3));
+}
+
+TEST_CASE("an unknown object (not among the models) neither attracts the cans nor hides them") {
+  // A grey box (not a model) beside the cans and partly in front of the red one.
+  std::vector<Mesh> meshes = can_meshes();
+  Mesh box = test::make_box(0.08f, 0.05f, 0.07f);
+  box.vertex_colors.assign(box.vertices.size(), Rgb8{120, 120, 120});
+  for (auto& v : box.vertices) v.z() += 0.035f;  // standing on z = 0
+  meshes.push_back(box);
+  const RgbdFrame frame =
+      render_scene(meshes, {{0, 0.06f, 0.08f, 0.3f}, {1, -0.1f, 0.0f, 1.1f}, {2, 0.07f, -0.02f, 0.2f}});
+  const TabletopResult r =
+      TabletopEstimator<cpu::Backend>(can_models()).estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
+  REQUIRE(r.poses.size() == 2);
+  CHECK(xy_error(*pose_of(r, 0), 0.06f, 0.08f) < 0.01f);
+  CHECK(xy_error(*pose_of(r, 1), -0.1f, 0.0f) < 0.01f);
+  // Unoccluded, the red can shows ~350 points at this stride (see the first test): the box hides some.
+  CHECK(pose_of(r, 0)->cost.rendered_points < 320);
 }
