@@ -141,10 +141,12 @@ PERCH2_HD inline Lab<T> srgb_to_lab(Rgb8 c) {
   return {T(116) * fy - T(16), T(500) * (fx - fy), T(200) * (fy - fz)};
 }
 
-/// CIEDE2000 colour difference Delta E_00 between two CIELAB colours (kL = kC = kH = 1), symmetric and
-/// zero for identical colours. Unitless; about 1 is a just-noticeable difference.
+/// CIEDE2000 colour difference Delta E_00 between two CIELAB colours (kC = kH = 1; the lightness parametric
+/// factor kL defaults to 1, the reference conditions; kL = 2 is the standard's textile setting, which halves
+/// the weight of lightness differences, e.g. for shading), symmetric and zero for identical colours.
+/// Unitless; about 1 is a just-noticeable difference.
 template <class T>
-PERCH2_HD inline T ciede2000(const Lab<T>& lab1, const Lab<T>& lab2) {
+PERCH2_HD inline T ciede2000(const Lab<T>& lab1, const Lab<T>& lab2, T kL = T(1)) {
   using namespace color_math;
   const T k25_pow7 = T(6103515625.0);  // 25^7
 
@@ -202,7 +204,7 @@ PERCH2_HD inline T ciede2000(const Lab<T>& lab1, const Lab<T>& lab2) {
   const T R_T = -sin_(deg_to_rad(T(2) * dtheta_deg)) * R_C;
 
   // (23). |R_T| < 2 makes the form positive definite; the clamp only removes rounding below 0 and keeps NaN.
-  const T l = dLp / S_L, c = dCp / S_C, h = dHp / S_H;
+  const T l = dLp / (kL * S_L), c = dCp / S_C, h = dHp / S_H;
   const T sum = l * l + c * c + h * h + R_T * c * h;
   return sqrt_(sum < T(0) ? T(0) : sum);
 }

@@ -1,6 +1,7 @@
 // The reference backend as a policy: every stage type a pipeline templated on a Backend needs.
 #pragma once
 
+#include "perch2/cpu/cost.hpp"
 #include "perch2/cpu/knn.hpp"
 #include "perch2/cpu/registration.hpp"
 #include "perch2/cpu/render.hpp"
@@ -12,6 +13,7 @@ struct Backend {
   using Renderer = cpu::Renderer;
   using KnnIndex = cpu::KnnIndex;
   using Registration = cpu::Registration;
+  using Cost = cpu::Cost;
 };
 
 }  // namespace perch2::cpu

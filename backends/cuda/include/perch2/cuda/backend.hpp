@@ -1,6 +1,7 @@
 // The Thrust backend as a policy, once per device system (see system.hpp).
 #pragma once
 
+#include "perch2/cuda/cost.hpp"
 #include "perch2/cuda/knn.hpp"
 #include "perch2/cuda/registration.hpp"
 #include "perch2/cuda/render.hpp"
@@ -14,6 +15,7 @@ struct Backend {
   using Renderer = thrust_backend::Renderer<System>;
   using KnnIndex = thrust_backend::KnnIndex<System>;
   using Registration = thrust_backend::Registration<System>;
+  using Cost = thrust_backend::Cost<System>;
 };
 
 }  // namespace perch2::thrust_backend

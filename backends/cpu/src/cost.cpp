@@ -1,0 +1,131 @@
+// Reference cost stage: per point, all neighbours within delta from an exact FLANN radius search
+// (cpu::KnnIndex), classified by the shared OutlierVote. The observed points inside each hypothesis' volume
+// are found by testing every point of its segment.
+#include "perch2/cpu/cost.hpp"
+
+#include <algorithm>
+
+#include "perch2/cpu/knn.hpp"
+#include "perch2/knn/scan.hpp"
+
+namespace perch2::cpu {
+
+namespace {
+
+/// Point classes (PointClass) of every query point against the index, in chunks of whole clouds so the
+/// neighbour lists stay small.
+std::vector<std::uint8_t> classify(const KnnIndex& index, const CloudBatch& queries,
+                                   const std::vector<std::int32_t>& query_segment,
+                                   const std::vector<Lab<float>>& query_lab,
+                                   const std::vector<Lab<float>>& target_lab, const CostSettings& s) {
+  constexpr std::int64_t kChunkPoints = std::int64_t(1) << 15;
+  std::vector<std::uint8_t> out(queries.size(), kDepthOutlier);
+  const std::size_t n = queries.num_clouds();
+  for (std::size_t c0 = 0; c0 < n;) {
+    std::size_t c1 = c0 + 1;
+    while (c1 < n && queries.offsets[c1 + 1] - queries.offsets[c0] <= kChunkPoints) ++c1;
+    const std::int64_t b = queries.offsets[c0], e = queries.offsets[c1];
+    CloudBatch chunk;
+    chunk.x.assign(queries.x.begin() + b, queries.x.begin() + e);
+    chunk.y.assign(queries.y.begin() + b, queries.y.begin() + e);
+    chunk.z.assign(queries.z.begin() + b, queries.z.begin() + e);
+    chunk.offsets.clear();
+    for (std::size_t c = c0; c <= c1; ++c) chunk.offsets.push_back(queries.offsets[c] - b);
+    const std::vector<std::int32_t> seg(query_segment.begin() + std::ptrdiff_t(c0),
+                                        query_segment.begin() + std::ptrdiff_t(c1));
+    const RadiusResult r = index.radius(chunk, seg, s.delta_m);
+#pragma omp parallel for schedule(static)
+    for (std::int64_t i = 0; i < e - b; ++i) {
+      OutlierVote vote{
+          query_lab[std::size_t(b + i)],          target_lab.data(), s.tau_c, s.lightness_factor, s.use_color,
+          s.color_rule == ColorRule::AnyNeighbour};
+      for (std::int64_t j = r.offsets[std::size_t(i)]; j < r.offsets[std::size_t(i) + 1]; ++j)
+        vote(r.index[std::size_t(j)], r.sq_distance_m2[std::size_t(j)]);
+      out[std::size_t(b + i)] = vote.result();
+    }
+    c0 = c1;
+  }
+  return out;
+}
+
+}  // namespace
+
+struct Cost::Impl {
+  CloudBatch observed;
+  KnnIndex index;
+  std::vector<Lab<float>> lab;
+  explicit Impl(const CloudBatch& o) : observed(o), index(o), lab(lab_colors(o)) {}
+};
+
+Cost::Cost(const CloudBatch& observed)
+    : impl_((validate_cost_observed(observed), std::make_unique<Impl>(observed))) {}
+Cost::~Cost() = default;
+Cost::Cost(Cost&&) noexcept = default;
+Cost& Cost::operator=(Cost&&) noexcept = default;
+
+std::size_t Cost::num_segments() const {
+  return impl_->observed.num_clouds();
+}
+
+CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request,
+                          const CostSettings& s) const {
+  const Impl& m = *impl_;
+  validate_cost_request(rendered, request, num_segments(), s);
+  const std::size_t n = rendered.num_clouds();
+  const std::vector<Lab<float>> rendered_lab = lab_colors(rendered);
+  CostResult result;
+  result.hypotheses.resize(n);
+
+  // J_r: every rendered point against the observed points of its hypothesis' segment.
+  const std::vector<std::uint8_t> rclass =
+      classify(m.index, rendered, request.observed_segment, rendered_lab, m.lab, s);
+
+  // J_o: the observed points inside each hypothesis' volume, against that hypothesis' rendered points.
+  const PackedVolumes vol = pack_volumes(request);
+  std::vector<std::vector<std::int32_t>> inside(n);
+#pragma omp parallel for schedule(dynamic, 8)
+  for (std::int64_t h = 0; h < std::int64_t(n); ++h) {
+    const VolumeView& v = vol.views[std::size_t(h)];
+    const std::size_t seg = std::size_t(request.observed_segment[std::size_t(h)]);
+    for (std::int64_t i = m.observed.offsets[seg]; i < m.observed.offsets[seg + 1]; ++i) {
+      const Vec3f p = m.observed.point(std::size_t(i));
+      if (v.radius_m < 0.f || (knn_sq_distance(p, v.centre_cam) <= v.radius_m * v.radius_m &&
+                               inside_volume(v, vol.vertices.data(), p)))
+        inside[std::size_t(h)].push_back(std::int32_t(i));
+    }
+  }
+  CloudBatch queries;
+  std::vector<Lab<float>> query_lab;
+  for (std::size_t h = 0; h < n; ++h) {
+    for (const std::int32_t i : inside[h]) {
+      queries.x.push_back(m.observed.x[std::size_t(i)]);
+      queries.y.push_back(m.observed.y[std::size_t(i)]);
+      queries.z.push_back(m.observed.z[std::size_t(i)]);
+      query_lab.push_back(m.lab[std::size_t(i)]);
+    }
+    queries.offsets.push_back(std::int64_t(queries.x.size()));
+  }
+  std::vector<std::int32_t> own(n);
+  for (std::size_t h = 0; h < n; ++h) own[h] = std::int32_t(h);
+  const KnnIndex rendered_index(rendered);  // one kd-tree per hypothesis
+  const std::vector<std::uint8_t> oclass = classify(rendered_index, queries, own, query_lab, rendered_lab, s);
+
+  for (std::size_t h = 0; h < n; ++h) {
+    CostBreakdown& b = result.hypotheses[h];
+    for (std::int64_t i = rendered.offsets[h]; i < rendered.offsets[h + 1]; ++i) {
+      const std::uint8_t c = rclass[std::size_t(i)];
+      b.rendered_inliers += c == kInlier, b.rendered_depth_outliers += c == kDepthOutlier;
+      b.rendered_color_outliers += c == kColorOutlier;
+    }
+    b.rendered_points = std::int32_t(rendered.cloud_size(h));
+    b.observed_in_volume = std::int32_t(queries.cloud_size(h));
+    for (std::int64_t i = queries.offsets[h]; i < queries.offsets[h + 1]; ++i) {
+      const std::uint8_t c = oclass[std::size_t(i)];
+      b.observed_depth_outliers += c == kDepthOutlier, b.observed_color_outliers += c == kColorOutlier;
+    }
+    finish_cost(b, s);
+  }
+  return result;
+}
+
+}  // namespace perch2::cpu

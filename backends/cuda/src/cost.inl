@@ -1,0 +1,248 @@
+// Thrust cost stage. Included by cost.cu (nvcc, CUDA system) and cost_omp.cpp (g++, OpenMP system); the
+// algorithm text lives here once, over the PERCH2_HD pieces of perch2/cost/cost.hpp and perch2/knn/grid.hpp.
+//   J_r: one thread per rendered point visits the observed grid within delta (OutlierVote).
+//   J_o: one thread per hypothesis counts, then lists, the observed points inside its volume (visiting the
+//        observed grid within the volume's bounding sphere); one thread per listed (hypothesis, point) pair
+//        visits that hypothesis' rendered points (a grid over the rendered batch, one segment per
+//        hypothesis) within delta.
+//   One thread per hypothesis sums its point classes.
+#include <thrust/copy.h>
+#include <thrust/device_vector.h>
+#include <thrust/execution_policy.h>
+#include <thrust/for_each.h>
+#include <thrust/iterator/counting_iterator.h>
+#include <thrust/scan.h>
+#include <thrust/transform.h>
+
+#include "perch2/core/segments.hpp"
+#include "perch2/cuda/cost.hpp"
+#include "perch2/cuda/knn.hpp"
+#include "perch2/knn/grid.hpp"
+#include "thrust_util.hpp"
+
+namespace perch2::thrust_backend {
+
+namespace cost_kernels {
+
+struct ToLab {
+  PERCH2_HD Lab<float> operator()(std::uint32_t rgb) const { return srgb_to_lab<float>(unpack_rgb(rgb)); }
+};
+
+/// What a point is compared against: a grid over the other cloud and that cloud's colours.
+struct Side {
+  GridView grid;
+  const Lab<float>* lab;
+};
+
+struct VoteParams {
+  float delta_m, tau_c, kL;
+  bool use_color, any_rule;
+};
+
+PERCH2_HD inline std::uint8_t classify(const Side& other, int segment, Vec3f p, Lab<float> lab,
+                                       const VoteParams& s) {
+  OutlierVote vote{lab, other.lab, s.tau_c, s.kL, s.use_color, s.any_rule};
+  grid_radius_visit(other.grid, segment, p, s.delta_m, vote);
+  return vote.result();
+}
+
+/// J_r: class of rendered point i (its cloud found from the offsets) against the observed segment.
+struct ClassifyRendered {
+  Side observed;
+  VoteParams params;
+  const Vec3f* points;
+  const Lab<float>* lab;
+  const std::int64_t* offsets;
+  int num_clouds;
+  const std::int32_t* segment_of_cloud;
+  PERCH2_HD std::uint8_t operator()(std::int64_t i) const {
+    const int c = find_segment(offsets, num_clouds, i);
+    return classify(observed, segment_of_cloud[c], points[i], lab[i], params);
+  }
+};
+
+/// Visits the observed points near a volume and counts (list == nullptr) or lists those inside it.
+struct InsideVisitor {
+  const Vec3f* points;
+  const VolumeView* volume;
+  const Vec2f* vertices;
+  std::int32_t* list;
+  std::int64_t n = 0;
+  PERCH2_HD void operator()(std::int32_t index, float) {
+    if (!inside_volume(*volume, vertices, points[index])) return;
+    if (list) list[n] = index;
+    ++n;
+  }
+};
+
+/// The observed points in hypothesis h's volume: counted (out == nullptr) or written from out[offsets[h]].
+struct VolumePoints {
+  GridView grid;
+  const Vec3f* points;
+  const std::int64_t* segment_offsets;
+  const VolumeView* volumes;
+  const Vec2f* vertices;
+  const std::int32_t* segment_of_cloud;
+  const std::int64_t* out_offsets;
+  std::int32_t* out;
+  PERCH2_HD std::int64_t operator()(std::int64_t h) const {
+    const VolumeView& v = volumes[h];
+    const int s = segment_of_cloud[h];
+    std::int32_t* list = out ? out + out_offsets[h] : nullptr;
+    if (v.radius_m < 0.f) {  // the whole segment
+      const std::int64_t b = segment_offsets[s], e = segment_offsets[s + 1];
+      if (list)
+        for (std::int64_t i = b; i < e; ++i) list[i - b] = std::int32_t(i);
+      return e - b;
+    }
+    InsideVisitor visit{points, &v, vertices, list};
+    grid_radius_visit(grid, s, v.centre_cam, v.radius_m, visit);
+    return visit.n;
+  }
+};
+
+/// J_o: class of listed pair j (observed point, hypothesis) against that hypothesis' rendered points.
+struct ClassifyObserved {
+  Side rendered;
+  VoteParams params;
+  const Vec3f* points;
+  const Lab<float>* lab;
+  const std::int32_t* pair_point;
+  const std::int64_t* pair_offsets;
+  int num_clouds;
+  PERCH2_HD std::uint8_t operator()(std::int64_t j) const {
+    const int h = find_segment(pair_offsets, num_clouds, j);
+    const std::int32_t i = pair_point[j];
+    return classify(rendered, h, points[i], lab[i], params);
+  }
+};
+
+struct ClassCounts {
+  std::int32_t inliers, depth, color;
+};
+
+/// Sums the classes of elements [offsets[h], offsets[h + 1]).
+struct SumClasses {
+  const std::uint8_t* classes;
+  const std::int64_t* offsets;
+  PERCH2_HD ClassCounts operator()(std::int64_t h) const {
+    ClassCounts c{0, 0, 0};
+    for (std::int64_t i = offsets[h]; i < offsets[h + 1]; ++i) {
+      c.inliers += classes[i] == kInlier;
+      c.depth += classes[i] == kDepthOutlier;
+      c.color += classes[i] == kColorOutlier;
+    }
+    return c;
+  }
+};
+
+inline std::vector<Vec3f> to_aos(const CloudBatch& b) {
+  std::vector<Vec3f> p(b.size());
+  for (std::size_t i = 0; i < b.size(); ++i) p[i] = {b.x[i], b.y[i], b.z[i]};
+  return p;
+}
+
+}  // namespace cost_kernels
+
+template <class System>
+struct Cost<System>::Impl {
+  KnnIndex<System> index;
+  std::vector<std::int64_t> offsets_host;
+  thrust::device_vector<std::int64_t> offsets;
+  thrust::device_vector<Vec3f> points;
+  thrust::device_vector<Lab<float>> lab;
+
+  explicit Impl(const CloudBatch& observed)
+      : index(observed),
+        offsets_host(observed.offsets),
+        offsets(to_device(observed.offsets)),
+        points(to_device(cost_kernels::to_aos(observed))) {
+    const thrust::device_vector<std::uint32_t> rgb = to_device(observed.rgb);
+    lab.resize(rgb.size());
+    thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(lab), cost_kernels::ToLab{});
+  }
+};
+
+template <class System>
+Cost<System>::Cost(const CloudBatch& observed)
+    : impl_((validate_cost_observed(observed), std::make_unique<Impl>(observed))) {}
+template <class System>
+Cost<System>::~Cost() = default;
+template <class System>
+Cost<System>::Cost(Cost&&) noexcept = default;
+template <class System>
+Cost<System>& Cost<System>::operator=(Cost&&) noexcept = default;
+
+template <class System>
+std::size_t Cost<System>::num_segments() const {
+  return impl_->offsets_host.size() - 1;
+}
+
+template <class System>
+CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest& request,
+                                  const CostSettings& s) const {
+  using namespace cost_kernels;
+  const Impl& m = *impl_;
+  validate_cost_request(rendered, request, num_segments(), s);
+  const std::int64_t n = std::int64_t(rendered.num_clouds());
+  const std::int64_t nr = std::int64_t(rendered.size());
+  const VoteParams params{s.delta_m, s.tau_c, s.lightness_factor, s.use_color,
+                          s.color_rule == ColorRule::AnyNeighbour};
+  const thrust::counting_iterator<std::int64_t> first(0);
+
+  // Rendered points, colours and a grid over them (one segment per hypothesis).
+  const KnnIndex<System> rendered_index(rendered);
+  const thrust::device_vector<std::uint32_t> rgb = to_device(rendered.rgb);
+  thrust::device_vector<Lab<float>> rlab(rgb.size());
+  thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(rlab), ToLab{});
+  const thrust::device_vector<std::int64_t> roffsets = to_device(rendered.offsets);
+  const thrust::device_vector<std::int32_t> seg = to_device(request.observed_segment);
+
+  // J_r.
+  thrust::device_vector<std::uint8_t> rclass(static_cast<std::size_t>(nr));
+  const Side observed_side{m.index.view().grid, ptr(m.lab)};
+  thrust::transform(thrust::device, first, first + nr, ptr(rclass),
+                    ClassifyRendered{observed_side, params, rendered_index.view().points, ptr(rlab),
+                                     ptr(roffsets), int(n), ptr(seg)});
+
+  // J_o: list the observed points inside each volume (count, scan, fill), then classify the pairs.
+  const PackedVolumes packed = pack_volumes(request);
+  const thrust::device_vector<VolumeView> volumes = to_device(packed.views);
+  const thrust::device_vector<Vec2f> vertices = to_device(packed.vertices);
+  thrust::device_vector<std::int64_t> pair_offsets(static_cast<std::size_t>(n) + 1, 0);
+  VolumePoints lister{m.index.view().grid, ptr(m.points), ptr(m.offsets), ptr(volumes),
+                      ptr(vertices),       ptr(seg),      nullptr,        nullptr};
+  thrust::transform(thrust::device, first, first + n, ptr(pair_offsets) + 1, lister);
+  thrust::inclusive_scan(thrust::device, ptr(pair_offsets) + 1, ptr(pair_offsets) + n + 1,
+                         ptr(pair_offsets) + 1);
+  const std::int64_t num_pairs = read_at(pair_offsets, std::size_t(n));
+  thrust::device_vector<std::int32_t> pair_point(static_cast<std::size_t>(num_pairs));
+  lister.out_offsets = ptr(pair_offsets), lister.out = ptr(pair_point);
+  thrust::for_each(thrust::device, first, first + n, lister);
+  thrust::device_vector<std::uint8_t> oclass(static_cast<std::size_t>(num_pairs));
+  const Side rendered_side{rendered_index.view().grid, ptr(rlab)};
+  thrust::transform(thrust::device, first, first + num_pairs, ptr(oclass),
+                    ClassifyObserved{rendered_side, params, ptr(m.points), ptr(m.lab), ptr(pair_point),
+                                     ptr(pair_offsets), int(n)});
+
+  // Per-hypothesis sums.
+  thrust::device_vector<ClassCounts> rsum(static_cast<std::size_t>(n)), osum(static_cast<std::size_t>(n));
+  thrust::transform(thrust::device, first, first + n, ptr(rsum), SumClasses{ptr(rclass), ptr(roffsets)});
+  thrust::transform(thrust::device, first, first + n, ptr(osum), SumClasses{ptr(oclass), ptr(pair_offsets)});
+  const std::vector<ClassCounts> r = to_host(rsum), o = to_host(osum);
+  const std::vector<std::int64_t> po = to_host(pair_offsets);
+  CostResult result;
+  result.hypotheses.resize(std::size_t(n));
+  for (std::size_t h = 0; h < std::size_t(n); ++h) {
+    CostBreakdown& b = result.hypotheses[h];
+    b.rendered_points = std::int32_t(rendered.cloud_size(h));
+    b.rendered_inliers = r[h].inliers, b.rendered_depth_outliers = r[h].depth;
+    b.rendered_color_outliers = r[h].color;
+    b.observed_in_volume = std::int32_t(po[h + 1] - po[h]);
+    b.observed_depth_outliers = o[h].depth, b.observed_color_outliers = o[h].color;
+    finish_cost(b, s);
+  }
+  return result;
+}
+
+}  // namespace perch2::thrust_backend

@@ -1,0 +1,738 @@
+// 3-DoF tabletop search (PERCH 2.0, Sections III-IV): find (x, y, yaw) on a known or estimated table plane
+// of every requested object by rendering a grid of hypotheses, refining them by (x, y, yaw) ICP,
+// re-rendering and scoring them with the explanation cost, and selecting the best per object.
+//
+//   perch2::TabletopEstimator<perch2::cpu::Backend> estimator({{can_a_mesh}, {can_b_mesh}});
+//   perch2::TabletopResult r = estimator.estimate(frame, {{0, 1}, {1, 2}});  // model 0 once, model 1 twice
+//   for (const auto& p : r.poses) use(p.model, p.T_cam_obj, p.T_world_obj);
+//
+// Frames: the table ("world") frame has z up (towards the camera side) and the table top at z = 0, as the
+// BOP world frame of tabletop scenes. A model stands on the table in its rest pose T_place_obj (object ->
+// placement frame; default: the model's own z axis up and its lowest vertex on the table); a hypothesis is
+// T_world_obj = Trans(x, y, 0) * RotZ(yaw) * T_place_obj.
+//
+// Pipeline per frame (timed per stage in TabletopResult::timings):
+//   table     T_cam_world given, or estimate_table_plane() (RANSAC on the depth)
+//   observed  the frame's points at settings.observed (stride 2); those between min_height_m and
+//             max_height_m above the table are the object readings (ICP target, support, workspace)
+//   grid      x, y every xy_step_m over the workspace, yaw every yaw_step_rad (one yaw if yaw_symmetric);
+//             a position needs min_support_points object readings within the footprint's circumradius +
+//             support_margin_m
+//   render    every hypothesis at render.stride, occluders marked from the observed depth (C-PERCH)
+//   refine    (x, y, yaw) ICP against the object readings (Dof::TableXYYaw), then back onto the grid's
+//             manifold exactly
+//   cost      re-rendered at score_stride and scored (perch2/cost/cost.hpp); J_o's volume is the model's
+//             convex footprint prism from min_height_m to its top, posed by the hypothesis
+//   select    per model, the lowest-cost acceptable poses (min_rendered_points, min_inlier_fraction) whose
+//             footprints do not interpenetrate by more than overlap_tolerance_m, `count` of them
+//
+// Variants (the paper's Table I, see tabletop_variant()):
+//   Perch2C  parallel per-object search, occluders marked from the observed depth, RGB-D cost (default)
+//   Perch2A  as C without occluder marking
+//   Perch2B  Monotone Scene Generation: objects placed one per level, a new object may not occlude the
+//            ones already placed, which hide it when it is rendered; RGB-D cost. Greedy: each level keeps
+//            the single best placement (a beam of width 1, not PERCH's full tree search).
+//   Perch    as B with the depth-only cost (PERCH)
+//   DepthOnlyC  as C with the depth-only cost
+//   BfIcp    brute-force ICP baseline (PERCH's): every grid hypothesis' visible surface refined by ICP; the
+//            lowest truncated mean squared correspondence distance wins (no rendering cost)
+#pragma once
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <numeric>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "perch2/core/error.hpp"
+#include "perch2/core/image.hpp"
+#include "perch2/core/mesh.hpp"
+#include "perch2/core/observed.hpp"
+#include "perch2/core/pose.hpp"
+#include "perch2/cost/cost.hpp"
+#include "perch2/registration/registration.hpp"
+#include "perch2/render/render.hpp"
+#include "perch2/search/table_plane.hpp"
+
+namespace perch2 {
+
+/// A model the tabletop search can place.
+struct TabletopModel {
+  Mesh mesh;  ///< object frame, metres
+  /// Symmetric about the table normal (shape and appearance): one yaw per position instead of a yaw grid.
+  bool yaw_symmetric = false;
+  /// Object -> placement frame (z up, table at z = 0, yaw 0). Unset: the object's z axis up, its lowest
+  /// vertex on the table, its origin above the placement origin.
+  std::optional<Pose> T_place_obj;
+};
+
+/// How many instances of a model (index into the estimator's models) the frame shows.
+struct ObjectCount {
+  int model = 0;
+  int count = 1;
+};
+
+enum class SearchMode : std::uint8_t {
+  Parallel,       ///< every object searched independently (PERCH 2.0)
+  Tree,           ///< Monotone Scene Generation, greedy level by level (PERCH, PERCH 2.0-B)
+  BruteForceIcp,  ///< ICP fitness instead of the rendering cost (BF-ICP baseline)
+};
+
+enum class SearchVariant : std::uint8_t { Perch2C, Perch2A, Perch2B, Perch, DepthOnlyC, BfIcp };
+
+inline const char* to_string(SearchVariant v) {
+  switch (v) {
+    case SearchVariant::Perch2C:
+      return "perch2-c";
+    case SearchVariant::Perch2A:
+      return "perch2-a";
+    case SearchVariant::Perch2B:
+      return "perch2-b";
+    case SearchVariant::Perch:
+      return "perch";
+    case SearchVariant::DepthOnlyC:
+      return "depth-only-c";
+    case SearchVariant::BfIcp:
+      return "bf-icp";
+  }
+  return "?";
+}
+
+struct TabletopSettings {
+  // ---- hypotheses
+  float xy_step_m = 0.08f;           ///< grid step in x and y on the table, metres (paper: 0.08)
+  float yaw_step_rad = 0.39269908f;  ///< yaw grid step, radians (paper: 22.5 deg)
+  /// Table-frame x-y bounds of the grid (metres). Unset: the bounding box of the observed points above the
+  /// table (between min_height_m and max_height_m), grown by workspace_margin_m.
+  std::optional<Eigen::AlignedBox2f> workspace_xy_m;
+  float workspace_margin_m = 0.02f;  ///< see workspace_xy_m, metres
+  /// Automatic workspace only: also clip it to the bounding box of the table readings (within
+  /// min_height_m of z = 0) grown by workspace_margin_m, so walls or shelves above the table's height
+  /// elsewhere in the room do not spread the grid.
+  bool clip_workspace_to_table = true;
+  float min_height_m = 0.01f;  ///< readings higher than this above the table belong to objects, metres;
+                               ///< also the floor of each hypothesis' J_o volume (table noise stays out)
+  float max_height_m = 0.6f;   ///< readings higher than this above the table are ignored, metres
+  /// A grid position is kept only if this many object readings lie within (footprint circumradius +
+  /// support_margin_m) of it in the table plane.
+  int min_support_points = 10;
+  float support_margin_m = 0.06f;  ///< covers the grid cell (0.75 * xy_step_m at the default step), metres
+
+  // ---- observed cloud, rendering, refinement, cost
+  ObservedCloudSettings observed{2};  ///< pixels of the frame used as observed points (stride 2)
+  RenderSettings render;              ///< renders before refinement (stride 4 by default)
+  int score_stride = 2;               ///< stride of the re-render that is scored (>= 1)
+  bool occluder_marking = true;       ///< observed depth nearer than a rendered pixel hides it (C-PERCH)
+  bool refine = true;                 ///< (x, y, yaw) ICP of every hypothesis before scoring
+  IcpSettings icp = [] {
+    IcpSettings s;
+    s.max_correspondence_distance_m = 0.04f;
+    s.max_iterations = 20;
+    return s;
+  }();  ///< dof, up_cam and origin_cam are set from the table frame
+  CostSettings cost;
+  SearchMode mode = SearchMode::Parallel;
+
+  // ---- selection
+  int min_rendered_points = 10;      ///< a pose must show at least this many points at score_stride
+  float min_inlier_fraction = 0.5f;  ///< ... and explain this fraction of them (rendered inliers / rendered)
+  /// ... and hold at least this many observed readings in its volume: a hypothesis hidden behind another
+  /// object shows a few points and has an empty volume, so its raw-count cost would be near 0 (not used by
+  /// BruteForceIcp, which has no volume).
+  int min_observed_in_volume = 10;
+  /// Two footprints overlap when they interpenetrate by more than this (separating-axis depth), metres.
+  float overlap_tolerance_m = 0.01f;
+  /// Tree mode: a placement may hide at most this fraction of its points' pixels of objects already placed.
+  float tree_max_occluding_fraction = 0.02f;
+  /// Fewer acceptable, non-overlapping poses than requested instances: throw InvalidInput (true) or return
+  /// the poses found and list the shortfall in TabletopResult::missing (false; e.g. for batch evaluation).
+  bool strict_instances = true;
+  /// Return every scored hypothesis (pose + cost) in TabletopResult::scored, e.g. to inspect the cost
+  /// landscape or draw it; off by default (thousands of entries).
+  bool keep_scored = false;
+
+  TablePlaneSettings table;  ///< used when no table frame is given
+};
+
+/// The settings of one of the paper's variants (see the file comment), on top of `base`.
+inline TabletopSettings tabletop_variant(SearchVariant v, TabletopSettings base = {}) {
+  const bool parallel =
+      v == SearchVariant::Perch2C || v == SearchVariant::Perch2A || v == SearchVariant::DepthOnlyC;
+  base.mode = parallel                    ? SearchMode::Parallel
+              : v == SearchVariant::BfIcp ? SearchMode::BruteForceIcp
+                                          : SearchMode::Tree;
+  base.occluder_marking = v == SearchVariant::Perch2C || v == SearchVariant::DepthOnlyC;
+  base.cost.use_color =
+      v == SearchVariant::Perch2C || v == SearchVariant::Perch2A || v == SearchVariant::Perch2B;
+  return base;
+}
+
+struct TabletopPose {
+  int model = 0;     ///< index into the estimator's models
+  int instance = 0;  ///< 0 .. count - 1 among this model's poses, best first
+  Pose T_cam_obj = Pose::Identity();
+  Pose T_world_obj = Pose::Identity();
+  float x_m = 0, y_m = 0, yaw_rad = 0;  ///< table frame placement (see the file comment)
+  float score = 0;     ///< what selection minimised: cost total, or ICP fitness (m^2) for BruteForceIcp
+  CostBreakdown cost;  ///< the explanation cost at this pose (scored as in Parallel mode)
+};
+
+struct TabletopTimings {  ///< seconds, wall clock
+  double table = 0, observed = 0, hypotheses = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0;
+};
+
+struct TabletopResult {
+  std::vector<TabletopPose> poses;  ///< grouped by request order, best first within a model
+  Pose T_cam_world = Pose::Identity();
+  bool table_estimated = false;       ///< true if T_cam_world came from estimate_table_plane
+  std::size_t hypotheses_grid = 0;    ///< grid hypotheses before pruning
+  std::size_t hypotheses_kept = 0;    ///< ... with enough observed support
+  std::size_t hypotheses_scored = 0;  ///< scored (Tree mode: summed over levels)
+  std::vector<ObjectCount> missing;   ///< non-strict mode: instances requested but not found
+  /// With TabletopSettings::keep_scored: every scored hypothesis after refinement (Tree mode: every level),
+  /// instance = -1; score as in TabletopPose.
+  std::vector<TabletopPose> scored;
+  TabletopTimings timings;
+};
+
+/// The rest pose T_place_obj of a model from any pose T_world_obj in which it stands on the table (e.g. a
+/// dataset's ground truth or a generator's placement): the pose with its table-plane position and its yaw
+/// removed, keeping its height, roll and pitch. Yaw is measured by the object's x axis projected onto the
+/// table (its y axis if x is vertical). Then T_world_obj = Trans(x, y, 0) * RotZ(yaw) * T_place_obj.
+inline Pose rest_pose_from(const Pose& T_world_obj) {
+  Eigen::Vector3f axis = T_world_obj.linear().col(0);
+  if (Eigen::Vector2f(axis.x(), axis.y()).norm() < 1e-3f) axis = T_world_obj.linear().col(1);
+  const float yaw = std::atan2(axis.y(), axis.x());
+  Pose T_world_place = Pose::Identity();
+  T_world_place.linear() = Eigen::AngleAxisf(yaw, Eigen::Vector3f::UnitZ()).toRotationMatrix();
+  T_world_place.translation() =
+      Eigen::Vector3f(T_world_obj.translation().x(), T_world_obj.translation().y(), 0.f);
+  return T_world_place.inverse() * T_world_obj;
+}
+
+namespace tabletop_detail {
+
+using Clock = std::chrono::steady_clock;
+inline double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+inline Pose placement(float x, float y, float yaw) {
+  Pose T = Pose::Identity();
+  T.linear() = Eigen::AngleAxisf(yaw, Eigen::Vector3f::UnitZ()).toRotationMatrix();
+  T.translation() = Eigen::Vector3f(x, y, 0.f);
+  return T;
+}
+
+inline Pose default_rest_pose(const Mesh& m) {
+  Pose T = Pose::Identity();
+  T.translation().z() = -m.bounds().min().z();
+  return T;
+}
+
+struct Candidate {
+  int model;
+  float x, y, yaw;
+};
+
+/// Footprint polygon of a candidate in table coordinates.
+inline std::vector<Eigen::Vector2f> posed_polygon(const Footprint& f, const Candidate& c) {
+  const Eigen::Rotation2Df R(c.yaw);
+  std::vector<Eigen::Vector2f> out;
+  for (const auto& p : f.polygon_xy_m) out.push_back(R * p + Eigen::Vector2f(c.x, c.y));
+  return out;
+}
+
+/// Interpenetration depth of two convex polygons (separating axis theorem): the smallest overlap of their
+/// projections over both polygons' edge normals; <= 0 if they are separated.
+inline float penetration_m(const std::vector<Eigen::Vector2f>& a, const std::vector<Eigen::Vector2f>& b) {
+  float depth = std::numeric_limits<float>::infinity();
+  for (const auto* poly : {&a, &b})
+    for (std::size_t i = 0; i < poly->size(); ++i) {
+      const Eigen::Vector2f e = (*poly)[(i + 1) % poly->size()] - (*poly)[i];
+      if (!(e.squaredNorm() > 1e-12f)) continue;  // a (near-)repeated vertex has no normal
+      const Eigen::Vector2f n = Eigen::Vector2f(e.y(), -e.x()).normalized();
+      float a0 = INFINITY, a1 = -INFINITY, b0 = INFINITY, b1 = -INFINITY;
+      for (const auto& p : a) a0 = std::min(a0, n.dot(p)), a1 = std::max(a1, n.dot(p));
+      for (const auto& p : b) b0 = std::min(b0, n.dot(p)), b1 = std::max(b1, n.dot(p));
+      depth = std::min(depth, std::min(a1, b1) - std::max(a0, b0));
+    }
+  return depth;
+}
+
+/// Keeps the points of a batch for which keep(global index) is true (offsets recomputed).
+template <class Keep>
+CloudBatch filter_points(const CloudBatch& in, Keep&& keep) {
+  CloudBatch out;
+  out.offsets = {0};
+  for (std::size_t c = 0; c < in.num_clouds(); ++c) {
+    for (auto i = std::size_t(in.offsets[c]); i < std::size_t(in.offsets[c + 1]); ++i)
+      if (keep(i)) {
+        out.x.push_back(in.x[i]), out.y.push_back(in.y[i]), out.z.push_back(in.z[i]);
+        out.rgb.push_back(in.rgb[i]), out.pixel.push_back(in.pixel[i]), out.cloud.push_back(in.cloud[i]);
+      }
+    out.offsets.push_back(std::int64_t(out.size()));
+  }
+  return out;
+}
+
+}  // namespace tabletop_detail
+
+template <class Backend>
+class TabletopEstimator {
+ public:
+  /// Validates the models and uploads them to the backend's renderer. Throws InvalidInput on no models,
+  /// a bad mesh or a bad rest pose.
+  explicit TabletopEstimator(std::vector<TabletopModel> models, TabletopSettings settings = {})
+      : models_(std::move(models)), settings_(std::move(settings)), renderer_(meshes_of(models_)) {
+    for (auto& m : models_) {
+      if (!m.T_place_obj) m.T_place_obj = tabletop_detail::default_rest_pose(m.mesh);
+      if (!is_valid_pose(*m.T_place_obj))
+        throw InvalidInput("model '" + m.mesh.name + "'", "T_place_obj is not a finite rigid transform");
+      footprints_.push_back(table_footprint(m.mesh, *m.T_place_obj, 0.f));  // floor set per call
+      float r2 = 0;
+      for (const auto& p : footprints_.back().polygon_xy_m) r2 = std::max(r2, p.squaredNorm());
+      circumradius_.push_back(std::sqrt(r2));
+    }
+  }
+
+  const TabletopSettings& settings() const { return settings_; }
+  TabletopSettings& settings() { return settings_; }
+  const std::vector<TabletopModel>& models() const { return models_; }
+
+  /// Index of the model whose mesh is called `name`. Throws InvalidInput if there is none.
+  int model_index(const std::string& name) const {
+    for (std::size_t i = 0; i < models_.size(); ++i)
+      if (models_[i].mesh.name == name) return int(i);
+    throw InvalidInput("model name", "no model called '" + name + "'");
+  }
+
+  /// Estimates the poses of the requested objects in one frame. T_cam_world (table frame -> camera) is
+  /// estimated from the depth when not given. Throws InvalidInput on a malformed frame (sizes, NaN depth),
+  /// missing colour for the RGB-D cost, an unknown model, no table visible, an empty scene, and (strict
+  /// mode) fewer acceptable poses than requested instances.
+  TabletopResult estimate(const RgbdFrame& frame, const std::vector<ObjectCount>& objects,
+                          const std::optional<Pose>& T_cam_world = std::nullopt) const {
+    using namespace tabletop_detail;
+    const auto t_start = Clock::now();
+    validate(frame, objects);
+    TabletopResult result;
+    Frame f{frame};
+    auto t = Clock::now();
+    if (T_cam_world) {
+      if (!is_valid_pose(*T_cam_world)) throw InvalidInput("T_cam_world", "is not a finite rigid transform");
+      f.T_cam_world = *T_cam_world;
+      if (!(f.T_cam_world.inverse().translation().z() > 0))
+        throw InvalidInput("T_cam_world",
+                           "puts the camera at or below the table plane (the table frame's z "
+                           "must point up, towards the camera)");
+    } else {
+      f.T_cam_world = estimate_table_plane(frame, settings_.table).T_cam_world;
+      result.table_estimated = true;
+    }
+    result.T_cam_world = f.T_cam_world;
+    result.timings.table = seconds_since(t);
+
+    t = Clock::now();
+    prepare_observed(f);
+    result.timings.observed = seconds_since(t);
+
+    t = Clock::now();
+    std::vector<Candidate> grid;
+    for (const auto& o : objects) {
+      const std::vector<Candidate> c = hypotheses(f, o.model, result.hypotheses_grid);
+      grid.insert(grid.end(), c.begin(), c.end());
+    }
+    result.hypotheses_kept = grid.size();
+    result.timings.hypotheses = seconds_since(t);
+
+    if (settings_.mode == SearchMode::Tree)
+      search_tree(f, objects, grid, result);
+    else
+      search_parallel(f, objects, grid, result);
+    if (!result.missing.empty() && settings_.strict_instances) {
+      const ObjectCount& m = result.missing.front();
+      throw InvalidInput("objects", "model " + std::to_string(m.model) + " ('" + models_[m.model].mesh.name +
+                                        "'): " + std::to_string(m.count) +
+                                        " requested instance(s) not found (no acceptable, non-overlapping "
+                                        "pose: are fewer instances present than requested?)");
+    }
+    result.timings.total = seconds_since(t_start);
+    return result;
+  }
+
+ private:
+  using Candidate = tabletop_detail::Candidate;
+  static constexpr float kTwoPi = 6.28318531f;
+
+  /// Per-frame state.
+  struct Frame {
+    explicit Frame(const RgbdFrame& f) : rgbd(f) {}
+    const RgbdFrame& rgbd;
+    Pose T_cam_world = Pose::Identity();
+    CloudBatch observed;                     ///< scored against (whole frame at settings.observed)
+    CloudBatch objects;                      ///< observed readings above the table (ICP target)
+    std::vector<Eigen::Vector2f> object_xy;  ///< their table coordinates
+    Eigen::AlignedBox2f workspace;
+    std::optional<typename Backend::Cost> cost;
+    std::optional<typename Backend::Registration> registration;
+  };
+
+  static std::vector<Mesh> meshes_of(const std::vector<TabletopModel>& models) {
+    if (models.empty()) throw InvalidInput("tabletop models", "no models given");
+    std::vector<Mesh> out;
+    for (const auto& m : models) out.push_back(m.mesh);
+    return out;
+  }
+
+  void validate(const RgbdFrame& frame, const std::vector<ObjectCount>& objects) const {
+    const TabletopSettings& s = settings_;
+    if (!(s.xy_step_m > 0 && std::isfinite(s.xy_step_m)) ||
+        !(s.yaw_step_rad > 0 && std::isfinite(s.yaw_step_rad)))
+      throw InvalidInput("TabletopSettings", "xy_step_m and yaw_step_rad must be finite and > 0");
+    if (!(s.min_height_m >= 0 && s.max_height_m > s.min_height_m))
+      throw InvalidInput("TabletopSettings", "needs 0 <= min_height_m < max_height_m");
+    if (s.score_stride < 1) throw InvalidInput("TabletopSettings::score_stride", "must be >= 1");
+    if (s.workspace_xy_m && (s.workspace_xy_m->isEmpty() || !s.workspace_xy_m->min().allFinite() ||
+                             !s.workspace_xy_m->max().allFinite()))
+      throw InvalidInput("TabletopSettings::workspace_xy_m", "must be a finite, non-empty box");
+    if (!(s.support_margin_m >= 0) || !(s.workspace_margin_m >= 0) || !(s.overlap_tolerance_m >= 0))
+      throw InvalidInput("TabletopSettings", "margins and tolerances must be >= 0");
+    frame.validate("tabletop frame");
+    if (s.cost.use_color && s.mode != SearchMode::BruteForceIcp && frame.rgb.empty())
+      throw InvalidInput("tabletop frame",
+                         "has no colour image, which the RGB-D cost needs (set "
+                         "cost.use_color = false for the depth-only cost)");
+    if (objects.empty()) throw InvalidInput("objects", "no objects requested");
+    for (std::size_t i = 0; i < objects.size(); ++i) {
+      const auto& o = objects[i];
+      if (o.model < 0 || std::size_t(o.model) >= models_.size())
+        throw InvalidInput("objects[" + std::to_string(i) + "]",
+                           "unknown model id " + std::to_string(o.model) + " (" +
+                               std::to_string(models_.size()) + " models)");
+      if (o.count < 1) throw InvalidInput("objects[" + std::to_string(i) + "]", "count must be >= 1");
+      for (std::size_t j = 0; j < i; ++j)
+        if (objects[j].model == o.model)
+          throw InvalidInput("objects", "model " + std::to_string(o.model) + " listed twice (use count)");
+    }
+  }
+
+  void prepare_observed(Frame& f) const {
+    const TabletopSettings& s = settings_;
+    f.observed = observed_cloud(f.rgbd, s.observed);
+    const Pose T_world_cam = f.T_cam_world.inverse();
+    std::vector<char> above(f.observed.size());
+    Eigen::AlignedBox2f table_box;
+    for (std::size_t i = 0; i < f.observed.size(); ++i) {
+      const Eigen::Vector3f p =
+          T_world_cam * Eigen::Vector3f(f.observed.x[i], f.observed.y[i], f.observed.z[i]);
+      above[i] = p.z() > s.min_height_m && p.z() <= s.max_height_m;
+      if (above[i]) f.object_xy.emplace_back(p.x(), p.y()), f.workspace.extend(f.object_xy.back());
+      if (std::abs(p.z()) <= s.min_height_m) table_box.extend(Eigen::Vector2f(p.x(), p.y()));
+    }
+    if (f.object_xy.empty())
+      throw InvalidInput("tabletop frame", "empty scene: no depth reading between " +
+                                               std::to_string(s.min_height_m) + " and " +
+                                               std::to_string(s.max_height_m) + " m above the table");
+    f.objects = tabletop_detail::filter_points(f.observed, [&](std::size_t i) { return above[i] != 0; });
+    if (s.workspace_xy_m) {
+      f.workspace = *s.workspace_xy_m;
+    } else {
+      f.workspace.min().array() -= s.workspace_margin_m;
+      f.workspace.max().array() += s.workspace_margin_m;
+      if (s.clip_workspace_to_table && !table_box.isEmpty()) {
+        table_box.min().array() -= s.workspace_margin_m;
+        table_box.max().array() += s.workspace_margin_m;
+        if (table_box.intersects(f.workspace)) f.workspace = f.workspace.intersection(table_box);
+      }
+    }
+    f.cost.emplace(f.observed);
+    f.registration.emplace(f.objects);
+  }
+
+  /// Grid hypotheses of one model, pruned by observed support; counts the unpruned ones.
+  std::vector<Candidate> hypotheses(const Frame& f, int model, std::size_t& grid_count) const {
+    const TabletopSettings& s = settings_;
+    const Eigen::Vector2f lo = f.workspace.min(), hi = f.workspace.max();
+    const int nx = int(std::floor((hi.x() - lo.x()) / s.xy_step_m)) + 1;
+    const int ny = int(std::floor((hi.y() - lo.y()) / s.xy_step_m)) + 1;
+    if (double(nx) * double(ny) > 1e6)
+      throw InvalidInput("tabletop workspace",
+                         "spans " + std::to_string(nx) + " x " + std::to_string(ny) +
+                             " grid positions (over a million): give workspace_xy_m or a "
+                             "larger xy_step_m");
+    const Eigen::Vector2f c = f.workspace.center();
+    const int nyaw =
+        models_[model].yaw_symmetric ? 1 : std::max(1, int(std::lround(kTwoPi / s.yaw_step_rad)));
+    const float reach = circumradius_[model] + s.support_margin_m;
+    std::vector<Candidate> out;
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i) {
+        const Eigen::Vector2f p(c.x() + (float(i) - 0.5f * float(nx - 1)) * s.xy_step_m,
+                                c.y() + (float(j) - 0.5f * float(ny - 1)) * s.xy_step_m);
+        grid_count += std::size_t(nyaw);
+        int support = 0;
+        for (const auto& q : f.object_xy) support += (q - p).squaredNorm() <= reach * reach;
+        if (support < s.min_support_points) continue;
+        for (int k = 0; k < nyaw; ++k) out.push_back({model, p.x(), p.y(), float(k) * kTwoPi / float(nyaw)});
+      }
+    return out;
+  }
+
+  Pose T_world_obj(const Candidate& c) const {
+    return tabletop_detail::placement(c.x, c.y, c.yaw) * *models_[c.model].T_place_obj;
+  }
+
+  std::vector<Hypothesis> to_hypotheses(const Frame& f, const std::vector<Candidate>& cands) const {
+    std::vector<Hypothesis> h;
+    for (const auto& c : cands) h.push_back({c.model, f.T_cam_world * T_world_obj(c), -1});
+    return h;
+  }
+
+  CloudBatch render(const Frame& f, const std::vector<Candidate>& cands, int stride, const Occluders* occ,
+                    TabletopTimings& timings) const {
+    const auto t = tabletop_detail::Clock::now();
+    RenderSettings rs = settings_.render;
+    rs.stride = stride;
+    CloudBatch out = renderer_.render(to_hypotheses(f, cands), f.rgbd.camera, rs, occ);
+    timings.render += tabletop_detail::seconds_since(t);
+    return out;
+  }
+
+  IcpSettings icp_settings(const Frame& f) const {
+    IcpSettings s = settings_.icp;
+    s.dof = Dof::TableXYYaw;
+    s.up_cam = f.T_cam_world.linear().col(2);
+    s.origin_cam = f.T_cam_world.translation();
+    return s;
+  }
+
+  /// Renders at the refinement stride, runs (x, y, yaw) ICP and moves every candidate to its result.
+  /// Returns the ICP result (BF-ICP selects on it) and the rendered point counts.
+  RegistrationResult refine(const Frame& f, std::vector<Candidate>& cands, const Occluders* occ,
+                            std::vector<std::int64_t>& points, TabletopTimings& timings) const {
+    const CloudBatch rendered = render(f, cands, settings_.render.stride, occ, timings);
+    points.resize(cands.size());
+    for (std::size_t h = 0; h < cands.size(); ++h) points[h] = std::int64_t(rendered.cloud_size(h));
+    const auto t = tabletop_detail::Clock::now();
+    const std::vector<std::int32_t> seg(cands.size(), 0);
+    RegistrationResult r = f.registration->icp(rendered, seg, icp_settings(f));
+    const Pose T_world_cam = f.T_cam_world.inverse();
+    for (std::size_t h = 0; h < cands.size(); ++h) {
+      // Back to exact (x, y, yaw): drop the rounding that would tilt the model off the table.
+      const Pose T = T_world_cam * r.T_corr[h] * f.T_cam_world * T_world_obj(cands[h]);
+      const Pose T_world_place = T * models_[cands[h].model].T_place_obj->inverse();
+      cands[h].x = T_world_place.translation().x(), cands[h].y = T_world_place.translation().y();
+      cands[h].yaw = std::atan2(T_world_place.linear()(1, 0), T_world_place.linear()(0, 0));
+    }
+    timings.refine += tabletop_detail::seconds_since(t);
+    return r;
+  }
+
+  CostRequest cost_request(const Frame& f, const std::vector<Candidate>& cands) const {
+    CostRequest req;
+    req.footprints = footprints_;
+    for (auto& fp : req.footprints) fp.z_min_m = std::min(settings_.min_height_m, fp.z_max_m);
+    for (const auto& c : cands)
+      req.add(0, c.model, f.T_cam_world * tabletop_detail::placement(c.x, c.y, c.yaw));
+    return req;
+  }
+
+  std::vector<CostBreakdown> score(const Frame& f, const std::vector<Candidate>& cands,
+                                   const CloudBatch& rendered, TabletopTimings& timings) const {
+    const auto t = tabletop_detail::Clock::now();
+    std::vector<CostBreakdown> out =
+        f.cost->evaluate(rendered, cost_request(f, cands), settings_.cost).hypotheses;
+    timings.cost += tabletop_detail::seconds_since(t);
+    return out;
+  }
+
+  bool acceptable(const CostBreakdown& b) const {
+    if (settings_.mode != SearchMode::BruteForceIcp &&
+        b.observed_in_volume < settings_.min_observed_in_volume)
+      return false;
+    return b.rendered_points >= settings_.min_rendered_points &&
+           float(b.rendered_inliers) >= settings_.min_inlier_fraction * float(b.rendered_points);
+  }
+
+  bool overlaps(const Candidate& a, const Candidate& b) const {
+    return tabletop_detail::penetration_m(tabletop_detail::posed_polygon(footprints_[a.model], a),
+                                          tabletop_detail::posed_polygon(footprints_[b.model], b)) >
+           settings_.overlap_tolerance_m;
+  }
+
+  TabletopPose make_pose(const Frame& f, const Candidate& c, int instance, float score,
+                         const CostBreakdown& b) const {
+    TabletopPose p;
+    p.model = c.model, p.instance = instance;
+    p.T_world_obj = T_world_obj(c);
+    p.T_cam_obj = f.T_cam_world * p.T_world_obj;
+    p.x_m = c.x, p.y_m = c.y, p.yaw_rad = c.yaw, p.score = score, p.cost = b;
+    return p;
+  }
+
+  void keep_scored(const Frame& f, const std::vector<Candidate>& cands, const std::vector<float>& scores,
+                   const std::vector<CostBreakdown>& costs, TabletopResult& result) const {
+    if (!settings_.keep_scored) return;
+    for (std::size_t h = 0; h < cands.size(); ++h)
+      result.scored.push_back(make_pose(f, cands[h], -1, scores[h], costs[h]));
+  }
+
+  /// Parallel (and BF-ICP) search: every candidate refined and scored at once; per model the best `count`
+  /// acceptable, non-overlapping ones by score.
+  void search_parallel(const Frame& f, const std::vector<ObjectCount>& objects, std::vector<Candidate> cands,
+                       TabletopResult& result) const {
+    using namespace tabletop_detail;
+    const TabletopSettings& s = settings_;
+    const bool bf = s.mode == SearchMode::BruteForceIcp;
+    const Occluders occluders{f.rgbd.depth_m, {}};
+    const Occluders* occ = s.occluder_marking ? &occluders : nullptr;
+    std::vector<float> scores(cands.size(), 0.f);
+    std::vector<CostBreakdown> costs(cands.size());
+    if (!cands.empty()) {
+      std::vector<std::int64_t> points;
+      RegistrationResult icp;
+      if (s.refine || bf) icp = refine(f, cands, occ, points, result.timings);
+      if (bf) {  // truncated mean squared distance: points without a correspondence count as the cap
+        const float cap2 = s.icp.max_correspondence_distance_m * s.icp.max_correspondence_distance_m;
+        for (std::size_t h = 0; h < cands.size(); ++h) {
+          const float n = float(points[h]), in = float(icp.inliers[h]);
+          const float e = std::isfinite(icp.final_error[h]) ? icp.final_error[h] : 0.f;
+          scores[h] = n > 0 ? (in * e * e + (n - in) * cap2) / n : INFINITY;
+          costs[h].rendered_points = std::int32_t(points[h]);
+          costs[h].rendered_inliers = icp.inliers[h];
+        }
+      } else {
+        costs = score(f, cands, render(f, cands, s.score_stride, occ, result.timings), result.timings);
+        for (std::size_t h = 0; h < cands.size(); ++h) scores[h] = costs[h].total;
+      }
+      result.hypotheses_scored += cands.size();
+      keep_scored(f, cands, scores, costs, result);
+    }
+    const auto t = Clock::now();
+    std::vector<std::size_t> order(cands.size());
+    std::iota(order.begin(), order.end(), std::size_t(0));
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::size_t a, std::size_t b) { return scores[a] < scores[b]; });
+    std::vector<Candidate> chosen;
+    std::vector<std::size_t> chosen_index;
+    for (const auto& o : objects) {
+      std::vector<Candidate> mine;
+      for (const std::size_t h : order) {
+        if (int(mine.size()) == o.count) break;
+        if (cands[h].model != o.model || !acceptable(costs[h])) continue;
+        if (std::any_of(mine.begin(), mine.end(), [&](const Candidate& c) { return overlaps(c, cands[h]); }))
+          continue;
+        mine.push_back(cands[h]);
+        result.poses.push_back(make_pose(f, cands[h], int(mine.size()) - 1, scores[h], costs[h]));
+        chosen.push_back(cands[h]);
+        chosen_index.push_back(result.poses.size() - 1);
+      }
+      if (int(mine.size()) < o.count) result.missing.push_back({o.model, o.count - int(mine.size())});
+    }
+    result.timings.select += seconds_since(t);
+    if (bf && !chosen.empty()) {  // report the explanation cost of the chosen poses too
+      const std::vector<CostBreakdown> b =
+          score(f, chosen, render(f, chosen, s.score_stride, occ, result.timings), result.timings);
+      for (std::size_t k = 0; k < chosen.size(); ++k) result.poses[chosen_index[k]].cost = b[k];
+    }
+  }
+
+  /// Monotone Scene Generation, greedily: each level refines and scores every remaining model's candidates
+  /// in the scene rendered so far (placed objects hide them), drops placements that would hide placed
+  /// objects, and places the model whose best placement explains the largest fraction of its points.
+  void search_tree(const Frame& f, const std::vector<ObjectCount>& objects,
+                   const std::vector<Candidate>& grid, TabletopResult& result) const {
+    using namespace tabletop_detail;
+    const TabletopSettings& s = settings_;
+    const Intrinsics& cam = f.rgbd.camera;
+    DepthImage placed_depth(cam.width, cam.height, 0.f);  // nearest placed surface, 0 = none
+    std::vector<Candidate> placed;
+    std::vector<int> remaining(models_.size(), 0);
+    for (const auto& o : objects) remaining[std::size_t(o.model)] = o.count;
+    std::vector<std::vector<TabletopPose>> found(models_.size());
+    const float margin = s.render.occlusion_margin_m;
+    auto hides = [margin](float occluder, float z) { return occluder > 0.f && occluder < z - margin; };
+    for (;;) {
+      std::vector<Candidate> cands;
+      for (const auto& c : grid)
+        if (remaining[std::size_t(c.model)] > 0) cands.push_back(c);
+      if (cands.empty()) break;
+      // Occluders: the placed objects (and the observed depth if marking is on).
+      Occluders occ{placed_depth, {}};
+      if (s.occluder_marking)
+        for (std::size_t i = 0; i < occ.depth_m.data.size(); ++i) {
+          const float d = f.rgbd.depth_m.data[i], p = occ.depth_m.data[i];
+          occ.depth_m.data[i] = p > 0.f && (d <= 0.f || p < d) ? p : d;
+        }
+      std::vector<std::int64_t> points;
+      if (s.refine) refine(f, cands, &occ, points, result.timings);
+      const CloudBatch all = render(f, cands, s.score_stride, nullptr, result.timings);
+      std::vector<std::int32_t> hiding(cands.size(), 0);
+      for (std::size_t h = 0; h < cands.size(); ++h)
+        for (auto i = std::size_t(all.offsets[h]); i < std::size_t(all.offsets[h + 1]); ++i)
+          hiding[h] += hides(all.z[i], placed_depth.data[std::size_t(all.pixel[i])]);
+      const CloudBatch visible = filter_points(
+          all, [&](std::size_t i) { return !hides(occ.depth_m.data[std::size_t(all.pixel[i])], all.z[i]); });
+      const std::vector<CostBreakdown> costs = score(f, cands, visible, result.timings);
+      result.hypotheses_scored += cands.size();
+      std::vector<float> totals(costs.size());
+      for (std::size_t h = 0; h < costs.size(); ++h) totals[h] = costs[h].total;
+      keep_scored(f, cands, totals, costs, result);
+
+      const auto t = Clock::now();
+      std::ptrdiff_t best = -1;
+      float best_fraction = INFINITY;
+      std::vector<float> best_total(models_.size(), INFINITY);
+      std::vector<std::ptrdiff_t> best_of(models_.size(), -1);
+      for (std::size_t h = 0; h < cands.size(); ++h) {
+        const auto m = std::size_t(cands[h].model);
+        const CostBreakdown& b = costs[h];
+        if (!acceptable(b) || float(hiding[h]) > s.tree_max_occluding_fraction * float(all.cloud_size(h)))
+          continue;
+        if (std::any_of(placed.begin(), placed.end(),
+                        [&](const Candidate& c) { return overlaps(c, cands[h]); }))
+          continue;
+        if (b.total < best_total[m]) best_total[m] = b.total, best_of[m] = std::ptrdiff_t(h);
+      }
+      for (std::size_t m = 0; m < models_.size(); ++m) {
+        if (best_of[m] < 0) continue;
+        const CostBreakdown& b = costs[std::size_t(best_of[m])];
+        const float fraction = float(b.rendered_outliers() + b.observed_unexplained()) /
+                               float(std::max(1, b.rendered_points + b.observed_in_volume));
+        if (fraction < best_fraction) best_fraction = fraction, best = best_of[m];
+      }
+      result.timings.select += seconds_since(t);
+      if (best < 0) break;  // no model can be placed any more
+      const Candidate& c = cands[std::size_t(best)];
+      found[std::size_t(c.model)].push_back(make_pose(f, c, int(found[std::size_t(c.model)].size()),
+                                                      costs[std::size_t(best)].total,
+                                                      costs[std::size_t(best)]));
+      placed.push_back(c);
+      --remaining[std::size_t(c.model)];
+      const CloudBatch full = render(f, {c}, 1, nullptr, result.timings);  // full-resolution depth of it
+      for (std::size_t i = 0; i < full.size(); ++i) {
+        float& d = placed_depth.data[std::size_t(full.pixel[i])];
+        d = d > 0.f ? std::min(d, full.z[i]) : full.z[i];
+      }
+    }
+    for (const auto& o : objects) {
+      auto& poses = found[std::size_t(o.model)];
+      result.poses.insert(result.poses.end(), poses.begin(), poses.end());
+      if (remaining[std::size_t(o.model)] > 0)
+        result.missing.push_back({o.model, remaining[std::size_t(o.model)]});
+    }
+  }
+
+  std::vector<TabletopModel> models_;
+  TabletopSettings settings_;
+  typename Backend::Renderer renderer_;
+  std::vector<Footprint> footprints_;  ///< per model, placement frame (floor: min_height_m, per call)
+  std::vector<float> circumradius_;    ///< per model, of the footprint about the placement origin, metres
+};
+
+}  // namespace perch2
