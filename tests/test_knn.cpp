@@ -6,12 +6,15 @@
 // reference exactly and its indices wherever the distance at that rank is unique. Distances are compared
 // exactly because every path computes dx*dx + dy*dy + dz*dz in the same order in float (no tolerance needed).
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <fstream>
+#include <future>
 #include <limits>
 #include <random>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <type_traits>
 #include <vector>
 
@@ -231,6 +234,26 @@ std::vector<Vec3f> read_ascii_ply_vertices(const std::string& path) {
   return v;
 }
 
+/// Runs fn on its own thread and returns whether it finished within `seconds` (rethrowing its exception).
+/// fn must own everything it touches: a call that hangs is left running, detached, so the test fails fast
+/// instead of hanging the suite (each doctest case is its own ctest process, which then exits).
+template <class Fn>
+bool finishes_within(double seconds, Fn fn) {
+  auto done = std::make_shared<std::promise<void>>();
+  std::future<void> finished = done->get_future();
+  std::thread([done, fn = std::move(fn)]() mutable {
+    try {
+      fn();
+      done->set_value();
+    } catch (...) {
+      done->set_exception(std::current_exception());
+    }
+  }).detach();
+  if (finished.wait_for(std::chrono::duration<double>(seconds)) != std::future_status::ready) return false;
+  finished.get();
+  return true;
+}
+
 }  // namespace
 
 TEST_CASE_TEMPLATE("kNN equals brute force on random clouds with several segments", Backend,
@@ -304,6 +327,42 @@ TEST_CASE_TEMPLATE("kNN with exact ties on a lattice", Backend, PERCH2_CPU_RUNNA
   const CloudBatch targets = make_batch({lattice});
   const CloudBatch queries = make_batch({q});
   check_all_methods<Backend>(targets, queries, {0}, {1, 6}, {kInf});
+}
+
+TEST_CASE_TEMPLATE("kNN terminates with knn_ball_cells = 0 when queries are cell representatives", Backend,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  // A cloud searched against itself (as normal estimation does): queries equal to their cell's
+  // representative start the ball search at radius 0, which with knn_ball_cells = 0 never grew (a hung
+  // kernel on a GPU). The search must finish (well within the guard; it takes milliseconds) and be exact.
+  std::mt19937 rng(29);
+  auto targets =
+      std::make_shared<const CloudBatch>(make_batch({sphere_surface(rng, 2000, {0, 0, 0.8f}, 0.05f)}));
+  perch2::KnnIndexSettings is;
+  is.grid.knn_ball_cells = 0.f;
+  for (int k : {2, 5}) {
+    INFO("k = " << k);
+    auto got = std::make_shared<KnnResult>();
+    auto host_grid = std::make_shared<KnnResult>();
+    const bool finished = finishes_within(20.0, [targets, is, k, got, host_grid] {
+      const typename Backend::KnnIndex index(*targets, is);
+      KnnSettings s;
+      s.k = k;
+      s.method = KnnMethod::Grid;
+      *got = index.knn(*targets, {0}, s);
+      // The kernel itself, on a host grid (the cpu backend searches with FLANN, not the grid).
+      const perch2::HostGrid grid(*targets, is.grid);
+      host_grid->k = k;
+      host_grid->index.resize(targets->size() * std::size_t(k));
+      host_grid->sq_distance_m2.resize(targets->size() * std::size_t(k));
+      for (std::size_t i = 0; i < targets->size(); ++i)
+        perch2::grid_knn(grid.view(), 0, targets->point(i), k, kInf, &host_grid->index[i * std::size_t(k)],
+                         &host_grid->sq_distance_m2[i * std::size_t(k)]);
+    });
+    REQUIRE_MESSAGE(finished, "grid kNN did not finish within 20 s (the ball search loops forever)");
+    const Reference ref = brute_force(*targets, *targets, {0}, k, kInf);
+    check_equal(*got, ref, breaks_ties_by_index<Backend>(), std::string(Backend::name));
+    check_equal(*host_grid, ref, true, "grid_knn on a host grid");
+  }
 }
 
 TEST_CASE_TEMPLATE("kNN edge cases: empty queries, empty segments, fewer than k points", Backend,
