@@ -20,45 +20,8 @@ using namespace perch2;
 
 namespace {
 
-Mesh lumpy_sphere(float radius_m, int rings, int segments) {
-  Mesh m;
-  m.name = "lumpy sphere";
-  const float pi = 3.14159265f;
-  for (int i = 0; i <= rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      const float th = pi * i / rings, ph = 2 * pi * j / segments;
-      const float r = radius_m * (1.f + 0.1f * std::sin(5 * ph) * std::sin(3 * th));
-      m.vertices.emplace_back(r * std::sin(th) * std::cos(ph), r * std::sin(th) * std::sin(ph),
-                              r * std::cos(th));
-      m.vertex_colors.push_back(
-          {std::uint8_t(128 + 100 * std::sin(th)), std::uint8_t(128 + 100 * std::cos(ph)), 90});
-    }
-  auto at = [&](int i, int j) { return i * segments + (j % segments); };
-  for (int i = 0; i < rings; ++i)
-    for (int j = 0; j < segments; ++j) {
-      m.triangles.emplace_back(at(i, j), at(i + 1, j), at(i + 1, j + 1));
-      m.triangles.emplace_back(at(i, j), at(i + 1, j + 1), at(i, j + 1));
-    }
-  return m;
-}
-
-/// Tabletop-like poses: 0.5-1.0 m away, anywhere in the central part of the view, any rotation.
-std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
-  std::mt19937 rng(42);
-  std::uniform_real_distribution<float> u(-1.f, 1.f), z(0.5f, 1.0f);
-  std::normal_distribution<float> g(0.f, 1.f);
-  const Eigen::Vector3f centre = mesh.bounds().center();
-  std::vector<Hypothesis> out;
-  for (int k = 0; k < n; ++k) {
-    Pose T = Pose::Identity();
-    T.linear() = Eigen::Quaternionf{g(rng), g(rng), g(rng), g(rng)}.normalized().toRotationMatrix();
-    const float depth = z(rng);
-    T.translation() =
-        Eigen::Vector3f{0.25f * depth * u(rng), 0.2f * depth * u(rng), depth} - T.linear() * centre;
-    out.push_back({0, T});
-  }
-  return out;
-}
+using bench::lumpy_sphere;
+using bench::poses;
 
 std::vector<int> strides = {1, 4, 8};
 std::string only_backend;  // empty: all

@@ -16,6 +16,7 @@
 #include <mutex>
 
 #include "perch2/core/segments.hpp"
+#include "perch2/cuda/launch_plan.hpp"
 #include "perch2/cuda/render.hpp"
 #include "perch2/render/mesh_arrays.hpp"
 #include "perch2/render/raster.hpp"
@@ -166,38 +167,6 @@ struct Scatter {
   }
 };
 
-/// Host-built offsets of one domain for the chunk.
-struct HostDomain {
-  int block = 1;
-  std::vector<std::int64_t> elements{0}, blocks{0};
-  void add(std::int64_t n) {
-    elements.push_back(elements.back() + n);
-    blocks.push_back(blocks.back() + (n + block - 1) / block);
-  }
-};
-
-/// Reserve for a chunk scan's temporary storage: CUB's decoupled look-back needs ~16 bytes per tile of
-/// ~2,000 samples, Thrust's OpenMP scan none; pixels / 16 + 4 KiB bounds both.
-inline std::size_t scan_temp_bytes(std::int64_t pixels) {
-  return DeviceArena::aligned(std::size_t(pixels) / 16 + 4096);
-}
-
-/// Device bytes of one chunk's arrays, in the order render() carves them from the arena: posed vertices and
-/// spans, three domains' offsets, z-buffer, resolved samples, visibility flags, slots, the compacted
-/// outputs (24 bytes per sample: every ROI sample may be visible) and the per-hypothesis output offsets.
-inline std::size_t chunk_arena_bytes(std::int64_t vertices, int count, std::int64_t pixels) {
-  const auto a = [](std::size_t bytes) { return DeviceArena::aligned(bytes); };
-  const std::size_t V = std::size_t(vertices), H = std::size_t(count) + 1, P = std::size_t(pixels);
-  return a(V * sizeof(Vec3f)) + a(V * sizeof(GridSpan)) + 6 * a(H * 8) + a(P * sizeof(DepthTriangle)) +
-         a(P * sizeof(RenderedSample)) + a(P * 4) + a((P + 1) * 8) + 3 * a(P * sizeof(float)) +
-         a(P * sizeof(std::uint32_t)) + 2 * a(P * sizeof(std::int32_t)) + a(H * 8);
-}
-
-/// All device working memory of one chunk: its arena arrays and the scan's temporaries.
-inline std::size_t chunk_bytes(std::int64_t vertices, int count, std::int64_t pixels) {
-  return chunk_arena_bytes(vertices, count, pixels) + scan_temp_bytes(pixels);
-}
-
 /// A domain's offsets copied into the arena.
 inline Domain upload_domain(DeviceArena& arena, const HostDomain& d) {
   std::int64_t* e = arena.take<std::int64_t>(d.elements.size());
@@ -297,40 +266,26 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
   batch.offsets.assign(std::size_t(n) + 1, 0);
   using Items = thrust::counting_iterator<std::int64_t>;
   const std::size_t budget = s.memory_budget_bytes ? s.memory_budget_bytes : System::default_chunk_bytes;
-  // Plan the chunks: grow each while all its device memory (chunk_bytes) fits the budget (>= 1 hypothesis).
-  struct Chunk {
-    int first = 0, count = 0;
-    HostDomain vertices, triangles, pixels;
-  };
-  std::vector<Chunk> chunks;
-  std::size_t arena_bytes = 0;
-  for (int first = 0; first < n;) {
-    Chunk ch{first, 0, {block}, {block}, {block}};
-    while (first + ch.count < n) {
-      const auto& m = impl_->host[model[first + ch.count]];
-      const std::int64_t roi_size = roi[first + ch.count].size();
-      if (ch.count > 0 && chunk_bytes(ch.vertices.elements.back() + std::int64_t(m.vertices), ch.count + 1,
-                                      ch.pixels.elements.back() + roi_size) > budget)
-        break;
-      ch.vertices.add(std::int64_t(m.vertices));
-      ch.triangles.add(std::int64_t(m.triangles));
-      ch.pixels.add(roi_size);
-      ++ch.count;
-    }
-    arena_bytes = std::max(
-        arena_bytes, chunk_arena_bytes(ch.vertices.elements.back(), ch.count, ch.pixels.elements.back()));
-    first += ch.count;
-    chunks.push_back(std::move(ch));
+  // Plan the chunks (perch2/cuda/launch_plan.hpp): all of a chunk's device memory fits the budget.
+  std::vector<std::int64_t> hyp_vertices(n), hyp_triangles(n), roi_samples(n);
+  for (int k = 0; k < n; ++k) {
+    hyp_vertices[k] = std::int64_t(impl_->host[model[k]].vertices);
+    hyp_triangles[k] = std::int64_t(impl_->host[model[k]].triangles);
+    roi_samples[k] = roi[k].size();
   }
+  const std::vector<RenderChunk> chunks =
+      plan_render_chunks(hyp_vertices, hyp_triangles, roi_samples, budget, block);
+  std::size_t arena_bytes = 0;
+  for (const RenderChunk& ch : chunks) arena_bytes = std::max(arena_bytes, ch.arena_bytes());
   DeviceArena& arena = w.arena;
   if (arena.reserve(arena_bytes, budget)) ++allocations;
 
-  for (const Chunk& ch : chunks) {
+  for (const RenderChunk& ch : chunks) {
     const int first = ch.first, count = ch.count;
     const HostDomain &vertices = ch.vertices, &triangles = ch.triangles, &pixels = ch.pixels;
     const std::int64_t num_vertices = vertices.elements.back(), num_pixels = pixels.elements.back();
     const std::size_t V = std::size_t(num_vertices), P = std::size_t(num_pixels);
-    arena.rewind();  // carve the chunk's arrays in the order of chunk_arena_bytes
+    arena.rewind();  // carve the chunk's arrays in the order of render_chunk_arena_bytes
     Vec3f* verts_cam = arena.take<Vec3f>(V);
     GridSpan* spans = arena.take<GridSpan>(V);
     const Domain d_vertices = upload_domain(arena, vertices), d_triangles = upload_domain(arena, triangles),

@@ -10,6 +10,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "perch2/cuda/launch_plan.hpp"
+
 namespace perch2::thrust_backend {
 
 template <class T>
@@ -85,13 +87,10 @@ void append_to_host(std::vector<T>& out, const T* device, std::size_t n) {
 }
 
 /// One device allocation reused for a stage's per-chunk buffers: each chunk carves its arrays from it (in
-/// a fixed order, 256-byte aligned), so a chunk's working memory is one figure the planner can hold to a
-/// budget, and repeated chunks and calls allocate nothing.
+/// a fixed order, 256-byte aligned), so a chunk's working memory is one figure (perch2/cuda/launch_plan.hpp)
+/// the planner can hold to a budget, and repeated chunks and calls allocate nothing.
 class DeviceArena {
  public:
-  static constexpr std::size_t kAlign = 256;
-  static std::size_t aligned(std::size_t bytes) { return (bytes + kAlign - 1) / kAlign * kAlign; }
-
   /// Makes the arena exactly `bytes` big if it is smaller, or larger than `max_bytes` (a smaller budget
   /// releases memory). Returns whether it allocated.
   bool reserve(std::size_t bytes, std::size_t max_bytes) {
@@ -108,7 +107,7 @@ class DeviceArena {
   template <class T>
   T* take(std::size_t n) {
     T* p = reinterpret_cast<T*>(reinterpret_cast<unsigned char*>(ptr(storage_)) + used_);
-    used_ += aligned(n * sizeof(T));
+    used_ += arena_aligned(n * sizeof(T));
     return p;
   }
 
