@@ -365,6 +365,26 @@ TEST_CASE_TEMPLATE("kNN terminates with knn_ball_cells = 0 when queries are cell
   }
 }
 
+TEST_CASE("thrust_omp KnnIndex over 400,000 coincident points builds in O(m log m)") {
+  // All points fall in one grid cell, placed in the order of the threads' atomic increments. Ordering the
+  // cell by insertion sort is O(m^2) in one thread: ~13 s here for 200,000 points on 2 threads, ~4x that
+  // for 400,000 (less with one thread, whose placement is already ordered); the heap sort takes ~0.5 s.
+  auto targets =
+      std::make_shared<CloudBatch>(make_batch({std::vector<Vec3f>(400000, Vec3f{0.1f, 0.2f, 0.9f})}));
+  auto result = std::make_shared<KnnResult>();
+  const bool finished = finishes_within(20.0, [targets, result] {
+    const perch2::thrust_omp::Backend::KnnIndex index(*targets);
+    KnnSettings s;
+    s.k = 3;
+    s.method = KnnMethod::Grid;
+    *result = index.knn(make_batch({{{0.1f, 0.2f, 0.9f}, {0.1f, 0.2f, 1.0f}}}), {0}, s);
+  });
+  REQUIRE_MESSAGE(finished, "building the grid over coincident points took over 20 s");
+  // Exact ties at distance 0 (and 0.1 m) break by the smaller index: the first three points.
+  CHECK(result->index == std::vector<std::int32_t>{0, 1, 2, 0, 1, 2});
+  CHECK(result->sq_distance_m2[0] == 0.f);
+}
+
 TEST_CASE_TEMPLATE("kNN edge cases: empty queries, empty segments, fewer than k points", Backend,
                    PERCH2_CPU_RUNNABLE_BACKENDS) {
   const CloudBatch targets = make_batch({{}, {{0, 0, 1}, {0, 0, 1.1f}}});

@@ -117,21 +117,7 @@ PERCH2_HD inline void heap_sort_pairs(K* key, std::int32_t* idx, std::int64_t n)
     idx[a] = idx[b];
     idx[b] = ti;
   };
-  auto sift = [&](std::int64_t root, std::int64_t size) {
-    while (true) {
-      std::int64_t child = 2 * root + 1;
-      if (child >= size) return;
-      if (child + 1 < size && less(child, child + 1)) ++child;
-      if (!less(root, child)) return;
-      swap(root, child);
-      root = child;
-    }
-  };
-  for (std::int64_t r = n / 2 - 1; r >= 0; --r) sift(r, n);
-  for (std::int64_t end = n - 1; end > 0; --end) {
-    swap(0, end);
-    sift(0, end);
-  }
+  heap_sort(n, less, swap);
 }
 
 /// Sort keys of source points: x coordinate (the kNN sweep) or the pixel index (pixel neighbourhoods).
