@@ -582,8 +582,8 @@ struct Registration<System>::Impl {
         shape.launch("active_check", 1, num);
         if (thrust::count_if(thrust::device(w.temp), state, state + num, reg_detail::IsActive{}) == 0) break;
       }
-      thrust::for_each(thrust::device, pts, pts + num_blocks, pass);
-      thrust::for_each(thrust::device, hyps, hyps + num, step);
+      thrust::for_each(nosync(), pts, pts + num_blocks, pass);  // no host wait per iteration
+      thrust::for_each(nosync(), hyps, hyps + num, step);
       shape.launch("linearize", int(per_item), num_blocks);
       shape.launch("step", 1, num);
     }

@@ -301,16 +301,17 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
     const ChunkArgs c{first,       count,    block,     d_roi + first, d_vertices,
                       d_triangles, d_pixels, verts_cam, spans,         zbuf};
 
-    thrust::fill_n(thrust::device, zbuf, num_pixels, kEmptyPixel);
-    thrust::for_each(thrust::device, Items(0), Items(vertices.blocks.back()),
+    // Passes up to the scan need no host wait (nosync); reading the chunk total waits for them.
+    thrust::fill_n(nosync(), zbuf, num_pixels, kEmptyPixel);
+    thrust::for_each(nosync(), Items(0), Items(vertices.blocks.back()),
                      TransformVertices{args, c, camera, s.stride, s.near_m});
-    thrust::for_each(thrust::device, Items(0), Items(triangles.blocks.back()),
+    thrust::for_each(nosync(), Items(0), Items(triangles.blocks.back()),
                      Rasterize{args, c, camera, s.stride, s.near_m, s.cull_back_faces});
-    thrust::for_each(thrust::device, Items(0), Items(pixels.blocks.back()),
+    thrust::for_each(nosync(), Items(0), Items(pixels.blocks.back()),
                      Resolve{args, c, camera, s.stride, occ, samples, visible});
 
     // Compact: slot[k] = number of visible samples before k; slot[num_pixels] = chunk total.
-    thrust::fill_n(thrust::device, slot, 1, std::int64_t(0));
+    thrust::fill_n(nosync(), slot, 1, std::int64_t(0));
     // Raw pointers with an explicit policy: Thrust's OpenMP scan is sequential over device_reference
     // iterators, whose reads bind a reference through a null policy pointer (UBSan reports it).
     thrust::inclusive_scan(thrust::device(w.temp), visible, visible + num_pixels, slot + 1,

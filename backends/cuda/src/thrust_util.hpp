@@ -5,6 +5,10 @@
 #include <thrust/device_ptr.h>
 #include <thrust/device_vector.h>
 
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_CUDA
+#include <thrust/system/cuda/execution_policy.h>
+#endif
+
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
@@ -13,6 +17,17 @@
 #include "perch2/cuda/launch_plan.hpp"
 
 namespace perch2::thrust_backend {
+
+/// Policy for launches the host need not wait for: on CUDA thrust::cuda::par_nosync (kernels stay ordered on
+/// the default stream; the next copy to the host or synchronising algorithm waits for them), elsewhere
+/// thrust::device (the OpenMP system runs each algorithm to completion anyway).
+inline auto nosync() {
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_CUDA
+  return thrust::cuda::par_nosync;
+#else
+  return thrust::device;
+#endif
+}
 
 template <class T>
 T* ptr(thrust::device_vector<T>& v) {
