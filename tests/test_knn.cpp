@@ -4,7 +4,8 @@
 // backend breaks ties by the smaller index, so it must equal the reference bit for bit (indices and
 // distances). FLANN (the cpu backend) may order exact ties differently: its distances must equal the
 // reference exactly and its indices wherever the distance at that rank is unique. Distances are compared
-// exactly because every path computes dx*dx + dy*dy + dz*dz in the same order in float (no tolerance needed).
+// exactly because every path computes dx*dx + dy*dy + dz*dz in the same order in float, without FMA
+// contraction (no tolerance needed; Backend::bitwise_reproducible, see perch2/cuda/system.hpp).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -30,6 +31,8 @@ using perch2::RadiusResult;
 using perch2::Vec3f;
 
 namespace {
+
+static_assert(perch2::cpu::Backend::bitwise_reproducible && perch2::thrust_omp::Backend::bitwise_reproducible);
 
 constexpr float kInf = std::numeric_limits<float>::infinity();
 const KnnMethod kMethods[] = {KnnMethod::Auto, KnnMethod::BruteForce, KnnMethod::PerQuery, KnnMethod::Grid};
