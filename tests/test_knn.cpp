@@ -32,7 +32,8 @@ using perch2::Vec3f;
 
 namespace {
 
-static_assert(perch2::cpu::Backend::bitwise_reproducible && perch2::thrust_omp::Backend::bitwise_reproducible);
+static_assert(perch2::cpu::Backend::bitwise_reproducible &&
+              perch2::thrust_omp::Backend::bitwise_reproducible);
 
 constexpr float kInf = std::numeric_limits<float>::infinity();
 const KnnMethod kMethods[] = {KnnMethod::Auto, KnnMethod::BruteForce, KnnMethod::PerQuery, KnnMethod::Grid};
