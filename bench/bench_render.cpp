@@ -29,23 +29,7 @@ using namespace perch2;
 
 namespace {
 
-/// Tabletop-like poses: 0.5-1.0 m away, anywhere in the central part of the view, any rotation.
-std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
-  std::mt19937 rng(42);
-  std::uniform_real_distribution<float> u(-1.f, 1.f), z(0.5f, 1.0f);
-  std::normal_distribution<float> g(0.f, 1.f);
-  const Eigen::Vector3f centre = mesh.bounds().center();
-  std::vector<Hypothesis> out;
-  for (int k = 0; k < n; ++k) {
-    Pose T = Pose::Identity();
-    T.linear() = Eigen::Quaternionf{g(rng), g(rng), g(rng), g(rng)}.normalized().toRotationMatrix();
-    const float depth = z(rng);
-    T.translation() =
-        Eigen::Vector3f{0.25f * depth * u(rng), 0.2f * depth * u(rng), depth} - T.linear() * centre;
-    out.push_back({0, T});
-  }
-  return out;
-}
+using bench::poses;
 
 std::vector<int> strides = {1, 4, 8};
 std::string only_backend;  // empty: all

@@ -1,4 +1,5 @@
-// Benchmark helpers: medians, peak memory of a configuration measured in a child process, machine name.
+// Benchmark helpers: medians, peak memory of a configuration measured in a child process, machine name,
+// the render benchmark's procedural mesh and poses.
 #pragma once
 
 #include <signal.h>
@@ -6,14 +7,20 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <functional>
+#include <random>
 #include <string>
 #include <vector>
+
+#include "perch2/core/mesh.hpp"
+#include "perch2/render/render.hpp"
 
 namespace perch2::bench {
 
@@ -105,5 +112,23 @@ class CompetingLoad {
  private:
   std::vector<pid_t> pids_;
 };
+
+/// Tabletop-like poses: 0.5-1.0 m away, anywhere in the central part of the view, any rotation.
+inline std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
+  std::mt19937 rng(42);
+  std::uniform_real_distribution<float> u(-1.f, 1.f), z(0.5f, 1.0f);
+  std::normal_distribution<float> g(0.f, 1.f);
+  const Eigen::Vector3f centre = mesh.bounds().center();
+  std::vector<Hypothesis> out;
+  for (int k = 0; k < n; ++k) {
+    Pose T = Pose::Identity();
+    T.linear() = Eigen::Quaternionf{g(rng), g(rng), g(rng), g(rng)}.normalized().toRotationMatrix();
+    const float depth = z(rng);
+    T.translation() =
+        Eigen::Vector3f{0.25f * depth * u(rng), 0.2f * depth * u(rng), depth} - T.linear() * centre;
+    out.push_back({0, T});
+  }
+  return out;
+}
 
 }  // namespace perch2::bench

@@ -4,14 +4,18 @@
 // backend breaks ties by the smaller index, so it must equal the reference bit for bit (indices and
 // distances). FLANN (the cpu backend) may order exact ties differently: its distances must equal the
 // reference exactly and its indices wherever the distance at that rank is unique. Distances are compared
-// exactly because every path computes dx*dx + dy*dy + dz*dz in the same order in float (no tolerance needed).
+// exactly because every path computes dx*dx + dy*dy + dz*dz in the same order in float, without FMA
+// contraction (no tolerance needed; Backend::bitwise_reproducible, see perch2/cuda/system.hpp).
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <fstream>
+#include <future>
 #include <limits>
 #include <random>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <type_traits>
 #include <vector>
 
@@ -27,6 +31,9 @@ using perch2::RadiusResult;
 using perch2::Vec3f;
 
 namespace {
+
+static_assert(perch2::cpu::Backend::bitwise_reproducible &&
+              perch2::thrust_omp::Backend::bitwise_reproducible);
 
 constexpr float kInf = std::numeric_limits<float>::infinity();
 const KnnMethod kMethods[] = {KnnMethod::Auto, KnnMethod::BruteForce, KnnMethod::PerQuery, KnnMethod::Grid};
@@ -231,6 +238,26 @@ std::vector<Vec3f> read_ascii_ply_vertices(const std::string& path) {
   return v;
 }
 
+/// Runs fn on its own thread and returns whether it finished within `seconds` (rethrowing its exception).
+/// fn must own everything it touches: a call that hangs is left running, detached, so the test fails fast
+/// instead of hanging the suite (each doctest case is its own ctest process, which then exits).
+template <class Fn>
+bool finishes_within(double seconds, Fn fn) {
+  auto done = std::make_shared<std::promise<void>>();
+  std::future<void> finished = done->get_future();
+  std::thread([done, fn = std::move(fn)]() mutable {
+    try {
+      fn();
+      done->set_value();
+    } catch (...) {
+      done->set_exception(std::current_exception());
+    }
+  }).detach();
+  if (finished.wait_for(std::chrono::duration<double>(seconds)) != std::future_status::ready) return false;
+  finished.get();
+  return true;
+}
+
 }  // namespace
 
 TEST_CASE_TEMPLATE("kNN equals brute force on random clouds with several segments", Backend,
@@ -304,6 +331,62 @@ TEST_CASE_TEMPLATE("kNN with exact ties on a lattice", Backend, PERCH2_CPU_RUNNA
   const CloudBatch targets = make_batch({lattice});
   const CloudBatch queries = make_batch({q});
   check_all_methods<Backend>(targets, queries, {0}, {1, 6}, {kInf});
+}
+
+TEST_CASE_TEMPLATE("kNN terminates with knn_ball_cells = 0 when queries are cell representatives", Backend,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  // A cloud searched against itself (as normal estimation does): queries equal to their cell's
+  // representative start the ball search at radius 0, which with knn_ball_cells = 0 never grew (a hung
+  // kernel on a GPU). The search must finish (well within the guard; it takes milliseconds) and be exact.
+  std::mt19937 rng(29);
+  auto targets =
+      std::make_shared<const CloudBatch>(make_batch({sphere_surface(rng, 2000, {0, 0, 0.8f}, 0.05f)}));
+  perch2::KnnIndexSettings is;
+  is.grid.knn_ball_cells = 0.f;
+  for (int k : {2, 5}) {
+    INFO("k = " << k);
+    auto got = std::make_shared<KnnResult>();
+    auto host_grid = std::make_shared<KnnResult>();
+    const bool finished = finishes_within(20.0, [targets, is, k, got, host_grid] {
+      const typename Backend::KnnIndex index(*targets, is);
+      KnnSettings s;
+      s.k = k;
+      s.method = KnnMethod::Grid;
+      *got = index.knn(*targets, {0}, s);
+      // The kernel itself, on a host grid (the cpu backend searches with FLANN, not the grid).
+      const perch2::HostGrid grid(*targets, is.grid);
+      host_grid->k = k;
+      host_grid->index.resize(targets->size() * std::size_t(k));
+      host_grid->sq_distance_m2.resize(targets->size() * std::size_t(k));
+      for (std::size_t i = 0; i < targets->size(); ++i)
+        perch2::grid_knn(grid.view(), 0, targets->point(i), k, kInf, &host_grid->index[i * std::size_t(k)],
+                         &host_grid->sq_distance_m2[i * std::size_t(k)]);
+    });
+    REQUIRE_MESSAGE(finished, "grid kNN did not finish within 20 s (the ball search loops forever)");
+    const Reference ref = brute_force(*targets, *targets, {0}, k, kInf);
+    check_equal(*got, ref, breaks_ties_by_index<Backend>(), std::string(Backend::name));
+    check_equal(*host_grid, ref, true, "grid_knn on a host grid");
+  }
+}
+
+TEST_CASE("thrust_omp KnnIndex over 400,000 coincident points builds in O(m log m)") {
+  // All points fall in one grid cell, placed in the order of the threads' atomic increments. Ordering the
+  // cell by insertion sort is O(m^2) in one thread: ~13 s here for 200,000 points on 2 threads, ~4x that
+  // for 400,000 (less with one thread, whose placement is already ordered); the heap sort takes ~0.5 s.
+  auto targets =
+      std::make_shared<CloudBatch>(make_batch({std::vector<Vec3f>(400000, Vec3f{0.1f, 0.2f, 0.9f})}));
+  auto result = std::make_shared<KnnResult>();
+  const bool finished = finishes_within(20.0, [targets, result] {
+    const perch2::thrust_omp::Backend::KnnIndex index(*targets);
+    KnnSettings s;
+    s.k = 3;
+    s.method = KnnMethod::Grid;
+    *result = index.knn(make_batch({{{0.1f, 0.2f, 0.9f}, {0.1f, 0.2f, 1.0f}}}), {0}, s);
+  });
+  REQUIRE_MESSAGE(finished, "building the grid over coincident points took over 20 s");
+  // Exact ties at distance 0 (and 0.1 m) break by the smaller index: the first three points.
+  CHECK(result->index == std::vector<std::int32_t>{0, 1, 2, 0, 1, 2});
+  CHECK(result->sq_distance_m2[0] == 0.f);
 }
 
 TEST_CASE_TEMPLATE("kNN edge cases: empty queries, empty segments, fewer than k points", Backend,

@@ -537,3 +537,36 @@ TEST_CASE_TEMPLATE("registration rejects bad input with a clear error", B, PERCH
   no_pixels.pixel[0] = -1;
   CHECK_THROWS_WITH_AS(reg.gicp(no_pixels, {0}, g), doctest::Contains("no pixel index"), InvalidInput);
 }
+
+TEST_CASE("thrust registration stops once every hypothesis is done and reuses its workspace") {
+  // Small perturbations converge in a few iterations: the passes must stop soon after (every
+  // kActiveCheckInterval = 4 iterations the host checks), not run all max_iterations; a second identical
+  // call allocates nothing on the device.
+  const Scene& sc = scene();
+  std::mt19937 rng(23);
+  const Eigen::Vector3f c = centroid(sc.view);
+  CloudBatch sources;
+  for (int k = 0; k < 4; ++k) append_moved(sources, sc.view, perturbation(rng, c, 2 * kDeg, 0.005f));
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  const thrust_omp::Backend::Registration reg(sc.target);
+  GicpSettings s = gicp_settings();
+  s.max_iterations = 200;
+  const RegistrationResult r = reg.gicp(sources, seg, s);
+  int most = 0;
+  for (std::size_t h = 0; h < r.size(); ++h) {
+    CHECK(r.converged[h] == 1);
+    most = std::max(most, r.iterations[h]);
+  }
+  REQUIRE(most < 50);
+  const thrust_backend::LaunchShape shape = reg.last_launch_shape();
+  const auto* linearize = shape.find("linearize");
+  REQUIRE(linearize != nullptr);
+  CHECK(linearize->launches >= most);
+  CHECK(linearize->launches <= most + 4);
+  const std::int64_t per_item = thrust_backend::OmpSystem::registration_points_per_item;
+  CHECK(linearize->max_items >= std::int64_t(sources.size()) / per_item);
+  CHECK(shape.device_allocations > 0);
+  const RegistrationResult again = reg.gicp(sources, seg, s);
+  CHECK(again.iterations == r.iterations);
+  CHECK(reg.last_launch_shape().device_allocations == 0);
+}

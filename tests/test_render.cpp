@@ -53,6 +53,10 @@ float inside_distance(const std::vector<Eigen::Vector2f>& hull, Eigen::Vector2f 
   return d;
 }
 
+// The backends compared here promise bit-for-bit equal results (no FMA contraction; see system.hpp). A
+// perch2::cuda built with PERCH2_CUDA_FMA=ON does not (Backend::bitwise_reproducible is false there).
+static_assert(cpu::Backend::bitwise_reproducible && thrust_omp::Backend::bitwise_reproducible);
+
 void require_equal_batches(const CloudBatch& a, const CloudBatch& b) {
   REQUIRE(a.offsets == b.offsets);
   REQUIRE(a.size() == b.size());
@@ -409,4 +413,51 @@ TEST_CASE_TEMPLATE("bad render inputs raise InvalidInput naming the input", B, P
   CHECK_THROWS_WITH_AS(typename B::Renderer({Mesh{}}), doctest::Contains("no vertices"), InvalidInput);
   CHECK_THROWS_WITH_AS(typename B::Renderer(std::vector<Mesh>{}), doctest::Contains("no models"),
                        InvalidInput);
+}
+
+TEST_CASE("thrust renderer: chunk device memory stays within memory_budget_bytes, outputs included") {
+  // The chunk planner counts every device array of a chunk, including the compacted outputs (24 bytes per
+  // visible sample) and the scan's temporaries; LaunchShape::peak_chunk_bytes is what the backend actually
+  // allocated for chunks (its arena and temporary blocks), not an estimate.
+  std::mt19937 rng(41);
+  std::vector<Mesh> models{test::make_blob(rng, 0.08f, 16, 24), test::make_box(0.12f, 0.1f, 0.08f)};
+  const Intrinsics K = vga_camera();
+  std::vector<Hypothesis> hyps;
+  for (int k = 0; k < 60; ++k) hyps.push_back({k % 2, test::random_pose(rng, 0.8f, 1.2f, 0.1f)});
+  const thrust_omp::Backend::Renderer renderer(models);
+  RenderSettings s = at_stride(1);
+  s.memory_budget_bytes = std::size_t(1) << 30;
+  const CloudBatch whole = renderer.render(hyps, K, s);
+  REQUIRE(renderer.last_launch_shape().find("rasterize")->launches == 1);  // one chunk
+  CHECK(whole.size() > 60 * 4000);  // > 4,000 visible samples per hypothesis (ROIs ~10^4): outputs matter
+  for (std::size_t budget : {std::size_t(3) << 20, std::size_t(5) << 20, std::size_t(16) << 20}) {
+    CAPTURE(budget);
+    s.memory_budget_bytes = budget;
+    require_equal_batches(whole, renderer.render(hyps, K, s));  // chunking never changes the result
+    const thrust_backend::LaunchShape shape = renderer.last_launch_shape();
+    CHECK(shape.find("rasterize")->launches > 1);
+    CHECK(shape.peak_chunk_bytes <= budget);
+    CHECK(shape.peak_chunk_bytes > budget / 2);  // chunks are filled, not tiny
+    // The workspace is warm: the same call again allocates nothing on the device.
+    renderer.render(hyps, K, s);
+    CHECK(renderer.last_launch_shape().device_allocations == 0);
+  }
+}
+
+TEST_CASE("thrust renderer: launch shape counts every pass's work items") {
+  std::mt19937 rng(43);
+  const std::vector<Mesh> models{test::make_blob(rng, 0.06f, 10, 12)};
+  std::vector<Hypothesis> hyps;
+  for (int k = 0; k < 7; ++k) hyps.push_back({0, test::random_pose(rng, 0.5f, 0.8f, 0.1f)});
+  const thrust_omp::Backend::Renderer renderer(models);
+  renderer.render(hyps, vga_camera(), at_stride(2));
+  const thrust_backend::LaunchShape shape = renderer.last_launch_shape();
+  const int block = thrust_backend::OmpSystem::render_elements_per_item;
+  const std::int64_t tri = std::int64_t(models[0].triangles.size());
+  const auto* raster = shape.find("rasterize");
+  REQUIRE(raster != nullptr);
+  CHECK(raster->elements_per_item == block);
+  CHECK(raster->items == 7 * ((tri + block - 1) / block));  // one chunk: every hypothesis' triangles
+  CHECK(shape.find("roi")->items == 7);
+  CHECK(shape.device_allocations > 0);  // the first call builds the workspace
 }

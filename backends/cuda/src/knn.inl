@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <limits>
 
+#include "perch2/core/segments.hpp"
 #include "perch2/cuda/knn.hpp"
 #include "perch2/knn/grid.hpp"
 #include "perch2/knn/scan.hpp"
@@ -76,20 +77,35 @@ struct PlaceInCells {
   }
 };
 
-/// Pass 3: order each cell's points by index (insertion sort; cells hold ~points_per_cell points), so the
-/// layout does not depend on the order of the atomic increments.
+/// Pass 3: order each cell's points by index, so the layout does not depend on the order of the atomic
+/// increments. Cells hold ~points_per_cell points (insertion sort); a large cell (coincident points, a
+/// dense cluster) is heap sorted: O(m log m) instead of O(m^2) in its one thread.
 struct OrderCell {
   const std::int32_t* cell_start;
   Vec3f* points;
   std::int32_t* index;
   PERCH2_HD void operator()(std::int64_t c) const {
-    for (std::int64_t i = cell_start[c] + 1; i < cell_start[c + 1]; ++i) {
-      const Vec3f p = points[i];
-      const std::int32_t v = index[i];
+    const std::int64_t b = cell_start[c], m = cell_start[c + 1] - b;
+    Vec3f* p = points + b;
+    std::int32_t* v = index + b;
+    if (m > 32) {
+      heap_sort(
+          m, [v](std::int64_t x, std::int64_t y) { return v[x] < v[y]; },
+          [p, v](std::int64_t x, std::int64_t y) {
+            const Vec3f tp = p[x];
+            p[x] = p[y], p[y] = tp;
+            const std::int32_t tv = v[x];
+            v[x] = v[y], v[y] = tv;
+          });
+      return;
+    }
+    for (std::int64_t i = 1; i < m; ++i) {
+      const Vec3f pi = p[i];
+      const std::int32_t vi = v[i];
       std::int64_t j = i;
-      for (; j > cell_start[c] && index[j - 1] > v; --j) points[j] = points[j - 1], index[j] = index[j - 1];
-      points[j] = p;
-      index[j] = v;
+      for (; j > 0 && v[j - 1] > vi; --j) p[j] = p[j - 1], v[j] = v[j - 1];
+      p[j] = pi;
+      v[j] = vi;
     }
   }
 };

@@ -7,8 +7,10 @@
 // The targets live in the kNN stage's KnnIndex<System>: correspondences and target normals are grid_knn ball
 // searches started from its per-cell representatives (exact, within the correspondence distance cap).
 #include <thrust/copy.h>
+#include <thrust/count.h>
 #include <thrust/device_vector.h>
 #include <thrust/execution_policy.h>
+#include <thrust/fill.h>
 #include <thrust/for_each.h>
 #include <thrust/iterator/counting_iterator.h>
 
@@ -23,22 +25,18 @@
 #include "perch2/knn/grid.hpp"
 #include "perch2/knn/scan.hpp"
 #include "perch2/registration/device_math.hpp"
+#include "thrust_util.hpp"
 
 namespace perch2::thrust_backend {
 namespace reg_detail {
 
-template <class T>
-T* ptr(thrust::device_vector<T>& v) {
-  return thrust::raw_pointer_cast(v.data());
-}
-template <class T>
-const T* ptr(const thrust::device_vector<T>& v) {
-  return thrust::raw_pointer_cast(v.data());
-}
+// Points per block of the per-iteration pass (System::registration_points_per_item): one thread handles
+// one block of one hypothesis and writes one partial sum. Affects only throughput and float summation
+// order, not the algorithm.
 
-/// Points per block of the per-iteration pass: one thread handles one block of one hypothesis and writes
-/// one partial sum. Affects only throughput and float summation order, not the algorithm.
-constexpr std::int64_t kBlockPoints = 64;
+/// Every this many iterations the host asks whether any hypothesis is still active (one count and a
+/// 4-byte read back) and stops when none is; in between, passes over finished hypotheses return at once.
+constexpr int kActiveCheckInterval = 4;
 
 /// Partial sums of one block: upper triangle of H (21), g (6), costs, squared distances, inliers.
 struct Accum {
@@ -57,6 +55,10 @@ struct HypState {
   int inliers, iterations;
   int buf;  ///< which correspondence buffer (0/1) holds the accepted pose's correspondences
   std::uint8_t have_acc, active, converged;
+};
+
+struct IsActive {
+  PERCH2_HD bool operator()(const HypState& st) const { return st.active != 0; }
 };
 
 /// Per-call constants (POD copy of the settings).
@@ -115,21 +117,7 @@ PERCH2_HD inline void heap_sort_pairs(K* key, std::int32_t* idx, std::int64_t n)
     idx[a] = idx[b];
     idx[b] = ti;
   };
-  auto sift = [&](std::int64_t root, std::int64_t size) {
-    while (true) {
-      std::int64_t child = 2 * root + 1;
-      if (child >= size) return;
-      if (child + 1 < size && less(child, child + 1)) ++child;
-      if (!less(root, child)) return;
-      swap(root, child);
-      root = child;
-    }
-  };
-  for (std::int64_t r = n / 2 - 1; r >= 0; --r) sift(r, n);
-  for (std::int64_t end = n - 1; end > 0; --end) {
-    swap(0, end);
-    sift(0, end);
-  }
+  heap_sort(n, less, swap);
 }
 
 /// Sort keys of source points: x coordinate (the kNN sweep) or the pixel index (pixel neighbourhoods).
@@ -473,6 +461,20 @@ struct Registration<System>::Impl {
   mutable std::mutex mutex;
   mutable std::map<int, thrust::device_vector<Vec3f>> target_normals;  // by k_neighbors
 
+  /// Per-call arrays, reused across calls (they grow only; run() holds run_mutex).
+  struct Workspace {
+    thrust::device_vector<Vec3f> points, centroid, normals, sorted;
+    thrust::device_vector<std::int64_t> offsets, block_begin, hyp_blocks;
+    thrust::device_vector<std::int32_t> segment, block_hyp, corr, key_pixel, order, pixel, position;
+    thrust::device_vector<float> key_x;
+    thrust::device_vector<reg_detail::HypState> state;
+    thrust::device_vector<reg_detail::Accum> blocks;
+    TempAllocator temp;
+  };
+  mutable std::mutex run_mutex;
+  mutable Workspace ws;
+  mutable LaunchShape shape;
+
   explicit Impl(const CloudBatch& targets) : index(targets) {}
 
   GridView grid() const { return index.view().grid; }
@@ -486,7 +488,6 @@ struct Registration<System>::Impl {
     const KnnView v = index.view();
     const std::int64_t num_points = std::int64_t(index.num_points());
     thrust::device_vector<Vec3f> n(static_cast<std::size_t>(num_points));
-    using reg_detail::ptr;
     thrust::for_each(
         thrust::device, thrust::counting_iterator<std::int64_t>(0),
         thrust::counting_iterator<std::int64_t>(num_points),
@@ -496,7 +497,12 @@ struct Registration<System>::Impl {
 
   RegistrationResult run(const CloudBatch& src, const std::vector<std::int32_t>& seg, reg_detail::Params P,
                          const GicpSettings* gs) const {
-    using reg_detail::ptr;
+    std::lock_guard<std::mutex> lock(run_mutex);
+    shape = LaunchShape{};
+    Workspace& w = ws;
+    w.temp.allocations = 0;
+    std::int64_t& allocs = shape.device_allocations;
+    const std::int64_t per_item = System::registration_points_per_item;
     const int num = int(src.num_clouds());
     const std::int64_t n = std::int64_t(src.size());
     const std::size_t un = src.size(), unum = src.num_clouds();
@@ -506,7 +512,7 @@ struct Registration<System>::Impl {
     std::vector<int> host_block_hyp;
     std::vector<std::int64_t> host_block_begin, host_hyp_blocks(unum + 1, 0);
     for (int h = 0; h < num; ++h) {
-      for (std::int64_t b = src.offsets[h]; b < src.offsets[h + 1]; b += reg_detail::kBlockPoints) {
+      for (std::int64_t b = src.offsets[h]; b < src.offsets[h + 1]; b += per_item) {
         host_block_hyp.push_back(h);
         host_block_begin.push_back(b);
       }
@@ -514,80 +520,78 @@ struct Registration<System>::Impl {
     }
     host_block_begin.push_back(n);
     const std::int64_t num_blocks = std::int64_t(host_block_hyp.size());
-    thrust::device_vector<Vec3f> points(host_points.begin(), host_points.end());
-    thrust::device_vector<std::int64_t> offsets(src.offsets.begin(), src.offsets.end());
-    thrust::device_vector<std::int32_t> segment(seg.begin(), seg.end());
-    thrust::device_vector<int> block_hyp(host_block_hyp.begin(), host_block_hyp.end());
-    thrust::device_vector<std::int64_t> block_begin(host_block_begin.begin(), host_block_begin.end());
-    thrust::device_vector<std::int64_t> hyp_blocks(host_hyp_blocks.begin(), host_hyp_blocks.end());
-    thrust::device_vector<Vec3f> centroid(unum);
-    thrust::device_vector<reg_detail::HypState> state(unum);
-    thrust::device_vector<std::int32_t> corr(2 * un, -1);
-    thrust::device_vector<reg_detail::Accum> blocks(static_cast<std::size_t>(num_blocks));
-    thrust::device_vector<Vec3f> normals;
+    Vec3f* points = upload(w.points, host_points, allocs);
+    const std::int64_t* offsets = upload(w.offsets, src.offsets, allocs);
+    const std::int32_t* segment = upload(w.segment, seg, allocs);
+    const int* block_hyp = upload(w.block_hyp, host_block_hyp, allocs);
+    const std::int64_t* block_begin = upload(w.block_begin, host_block_begin, allocs);
+    const std::int64_t* hyp_blocks = upload(w.hyp_blocks, host_hyp_blocks, allocs);
+    Vec3f* centroid = reuse(w.centroid, unum, allocs);
+    reg_detail::HypState* state = reuse(w.state, unum, allocs);
+    std::int32_t* corr = reuse(w.corr, 2 * un, allocs);
+    thrust::fill_n(thrust::device, corr, std::int64_t(2 * un), std::int32_t(-1));
+    reg_detail::Accum* blocks = reuse(w.blocks, std::size_t(num_blocks), allocs);
+    Vec3f* normals = nullptr;
     const Vec3f* tn = nullptr;
     const auto pts = thrust::counting_iterator<std::int64_t>(0);
 
     if (gs) {
       tn = ptr(normals_for(gs->k_neighbors));
-      normals.resize(un);
+      normals = reuse(w.normals, un, allocs);
       // Sort each cloud's points (by x for the kNN sweep, by pixel for pixel neighbourhoods) with one
       // device-callable heap sort per cloud.
       const bool by_pixel = gs->source_covariance == SourceCovariance::FromPixelNeighbourhood;
-      thrust::device_vector<float> key_x(by_pixel ? 0 : un);
-      thrust::device_vector<std::int32_t> key_pixel(by_pixel ? un : 0), order(un);
-      thrust::device_vector<std::int32_t> pixel;
-      if (by_pixel) pixel.assign(src.pixel.begin(), src.pixel.end());
-      float* kx = by_pixel ? nullptr : ptr(key_x);
-      std::int32_t* kp = by_pixel ? ptr(key_pixel) : nullptr;
-      thrust::for_each(
-          thrust::device, pts, pts + n,
-          reg_detail::SortKeys{ptr(points), by_pixel ? ptr(pixel) : nullptr, kx, kp, ptr(order)});
+      float* kx = by_pixel ? nullptr : reuse(w.key_x, un, allocs);
+      std::int32_t* kp = by_pixel ? reuse(w.key_pixel, un, allocs) : nullptr;
+      std::int32_t* order = reuse(w.order, un, allocs);
+      const std::int32_t* pixel = by_pixel ? upload(w.pixel, src.pixel, allocs) : nullptr;
+      thrust::for_each(thrust::device, pts, pts + n, reg_detail::SortKeys{points, pixel, kx, kp, order});
       thrust::for_each(thrust::device, thrust::counting_iterator<int>(0), thrust::counting_iterator<int>(num),
-                       reg_detail::SortClouds{ptr(offsets), kx, kp, ptr(order)});
+                       reg_detail::SortClouds{offsets, kx, kp, order});
+      shape.launch("source_sort_keys", 1, n);
+      shape.launch("source_sort_clouds", 1, num);
       if (!by_pixel) {
-        thrust::device_vector<std::int32_t> position(un);
-        thrust::device_vector<Vec3f> sorted(un);
+        std::int32_t* position = reuse(w.position, un, allocs);
+        Vec3f* sorted = reuse(w.sorted, un, allocs);
         thrust::for_each(thrust::device, pts, pts + n,
-                         reg_detail::ScatterSorted{ptr(points), ptr(order), ptr(sorted), ptr(position)});
-        thrust::for_each(thrust::device, pts, pts + n,
-                         reg_detail::SourceKnnNormals{ptr(sorted), ptr(position), ptr(offsets), num,
-                                                      gs->k_neighbors, ptr(normals)});
+                         reg_detail::ScatterSorted{points, order, sorted, position});
+        thrust::for_each(
+            thrust::device, pts, pts + n,
+            reg_detail::SourceKnnNormals{sorted, position, offsets, num, gs->k_neighbors, normals});
+        shape.launch("source_normals", 1, n);
       } else {
         const float md = gs->pixel_neighbour_max_distance_m;
-        thrust::for_each(thrust::device, pts, pts + n,
-                         reg_detail::SourcePixelNormals{ptr(points), ptr(offsets), ptr(pixel), ptr(key_pixel),
-                                                        ptr(order), num, gs->image_width_px,
-                                                        gs->pixel_radius_px, md * md, ptr(normals)});
+        thrust::for_each(
+            thrust::device, pts, pts + n,
+            reg_detail::SourcePixelNormals{points, offsets, pixel, kp, order, num, gs->image_width_px,
+                                           gs->pixel_radius_px, md * md, normals});
+        shape.launch("source_normals", 1, n);
       }
     }
 
     const auto hyps = thrust::counting_iterator<int>(0);
-    thrust::for_each(
-        thrust::device, hyps, hyps + num,
-        reg_detail::InitState{ptr(points), ptr(offsets), P.lambda_initial, ptr(centroid), ptr(state)});
-    const reg_detail::LinearizeBlock pass{P,
-                                          grid(),
-                                          target_points(),
-                                          tn,
-                                          ptr(points),
-                                          gs ? ptr(normals) : nullptr,
-                                          ptr(segment),
-                                          ptr(centroid),
-                                          ptr(block_hyp),
-                                          ptr(block_begin),
-                                          ptr(state),
-                                          ptr(corr),
-                                          n,
-                                          ptr(blocks)};
-    const reg_detail::StepHypothesis step{P, ptr(centroid), ptr(hyp_blocks), ptr(blocks), ptr(state)};
+    thrust::for_each(thrust::device, hyps, hyps + num,
+                     reg_detail::InitState{points, offsets, P.lambda_initial, centroid, state});
+    shape.launch("init", 1, num);
+    const reg_detail::LinearizeBlock pass{P,       grid(),   target_points(), tn,          points, normals,
+                                          segment, centroid, block_hyp,       block_begin, state,  corr,
+                                          n,       blocks};
+    const reg_detail::StepHypothesis step{P, centroid, hyp_blocks, blocks, state};
     for (int it = 0; it < P.max_iterations; ++it) {
-      thrust::for_each(thrust::device, pts, pts + num_blocks, pass);
-      thrust::for_each(thrust::device, hyps, hyps + num, step);
+      if (it > 0 && it % reg_detail::kActiveCheckInterval == 0) {
+        shape.launch("active_check", 1, num);
+        if (thrust::count_if(thrust::device(w.temp), state, state + num, reg_detail::IsActive{}) == 0) break;
+      }
+      thrust::for_each(nosync(), pts, pts + num_blocks, pass);  // no host wait per iteration
+      thrust::for_each(nosync(), hyps, hyps + num, step);
+      shape.launch("linearize", int(per_item), num_blocks);
+      shape.launch("step", 1, num);
     }
 
-    std::vector<reg_detail::HypState> host_state(unum);
-    thrust::copy(state.begin(), state.end(), host_state.begin());
+    std::vector<reg_detail::HypState> host_state;
+    append_to_host(host_state, state, unum);
+    allocs += w.temp.allocations;
+    shape.workspace_bytes = w.temp.bytes();
     RegistrationResult res;
     for (const auto& st : host_state) {
       res.T_corr.push_back(to_pose(st.T_acc));
@@ -651,6 +655,12 @@ Registration<System>& Registration<System>::operator=(Registration&&) noexcept =
 template <class System>
 std::size_t Registration<System>::num_segments() const {
   return impl_->num_segments();
+}
+
+template <class System>
+LaunchShape Registration<System>::last_launch_shape() const {
+  std::lock_guard<std::mutex> lock(impl_->run_mutex);
+  return impl_->shape;
 }
 
 template <class System>

@@ -13,8 +13,10 @@
 
 #include <algorithm>
 #include <cuda/atomic>
+#include <mutex>
 
 #include "perch2/core/segments.hpp"
+#include "perch2/cuda/launch_plan.hpp"
 #include "perch2/cuda/render.hpp"
 #include "perch2/render/mesh_arrays.hpp"
 #include "perch2/render/raster.hpp"
@@ -61,11 +63,9 @@ struct ComputeRoi {
   }
 };
 
-/// Elements per work item: amortises the item -> hypothesis search and still leaves ~10^5 items per chunk.
-constexpr int kBlock = 64;
-
 /// A segmented domain of the chunk (vertices, triangles or ROI samples): per chunk hypothesis, element
-/// offsets (count + 1, address the buffers) and work-item offsets (count + 1, blocks of kBlock elements).
+/// offsets (count + 1, address the buffers) and work-item offsets (count + 1, blocks of `block` elements:
+/// System::render_elements_per_item).
 struct Domain {
   const std::int64_t* elements;
   const std::int64_t* blocks;
@@ -73,14 +73,14 @@ struct Domain {
 
 /// The chunk being rendered: hypotheses [first, first + count) and their segmented work arrays.
 struct ChunkArgs {
-  int first, count;
+  int first, count, block;
   const GridRoi* roi;  // per chunk hypothesis
   Domain vertices, triangles, pixels;
   Vec3f* verts_cam;
   GridSpan* spans;
   DepthTriangle* zbuf;
   PERCH2_HD BlockRange range(const Domain& d, std::int64_t item) const {
-    return block_range(d.blocks, d.elements, count, item, kBlock);
+    return block_range(d.blocks, d.elements, count, item, block);
   }
 };
 
@@ -170,31 +170,13 @@ struct Scatter {
   }
 };
 
-/// Host-built offsets of one domain for the chunk.
-struct HostDomain {
-  std::vector<std::int64_t> elements{0}, blocks{0};
-  void add(std::int64_t n) {
-    elements.push_back(elements.back() + n);
-    blocks.push_back(blocks.back() + (n + kBlock - 1) / kBlock);
-  }
-};
-
-/// Device copy of a HostDomain.
-struct DeviceDomain {
-  thrust::device_vector<std::int64_t> elements, blocks;
-  Domain upload(const HostDomain& d) {
-    elements = to_device(d.elements);
-    blocks = to_device(d.blocks);
-    return {ptr(elements), ptr(blocks)};
-  }
-};
-
-template <class T>
-void append(std::vector<T>& out, const thrust::device_vector<T>& chunk, std::size_t n) {
-  if (n == 0) return;  // Thrust's cross-system copy takes &*out even for an empty range
-  const std::size_t at = out.size();
-  out.resize(at + n);
-  thrust::copy(chunk.begin(), chunk.begin() + std::ptrdiff_t(n), out.begin() + std::ptrdiff_t(at));
+/// A domain's offsets copied into the arena.
+inline Domain upload_domain(DeviceArena& arena, const HostDomain& d) {
+  std::int64_t* e = arena.take<std::int64_t>(d.elements.size());
+  std::int64_t* b = arena.take<std::int64_t>(d.blocks.size());
+  thrust::copy(d.elements.begin(), d.elements.end(), thrust::device_pointer_cast(e));
+  thrust::copy(d.blocks.begin(), d.blocks.end(), thrust::device_pointer_cast(b));
+  return {e, b};
 }
 
 }  // namespace render_detail
@@ -207,6 +189,16 @@ struct Renderer<System>::Impl {
   std::vector<Sizes> host;  // the arrays themselves live on the device only
   std::vector<std::unique_ptr<render_detail::DeviceMesh>> device;
   thrust::device_vector<MeshView> views;
+  // Workspace reused across chunks and calls (render() holds the mutex): per-call inputs grow only; the
+  // chunk arena is resized to the largest chunk (released when a later call's budget is smaller).
+  mutable std::mutex mutex;
+  mutable thrust::device_vector<std::int32_t> model, label, occ_labels;
+  mutable thrust::device_vector<Rigid3f> T_cam_obj;
+  mutable thrust::device_vector<GridRoi> roi;
+  mutable thrust::device_vector<float> occ_depth;
+  mutable DeviceArena arena;
+  mutable TempAllocator temp;
+  mutable LaunchShape shape;
 };
 
 template <class System>
@@ -233,119 +225,129 @@ std::size_t Renderer<System>::num_models() const {
 }
 
 template <class System>
+LaunchShape Renderer<System>::last_launch_shape() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->shape;
+}
+
+template <class System>
 CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, const Intrinsics& camera,
                                     const RenderSettings& s, const Occluders* occluders) const {
   using namespace render_detail;
   validate_render_request(hypotheses, impl_->host.size(), camera, s, occluders);
+  Impl& w = *impl_;
+  std::lock_guard<std::mutex> lock(w.mutex);
+  w.shape = LaunchShape{};
+  w.temp.allocations = 0;
+  std::int64_t& allocations = w.shape.device_allocations;
   const int n = int(hypotheses.size());
+  const int block = System::render_elements_per_item;
 
   // Hypotheses and occluders to the device.
   std::vector<std::int32_t> model(n), label(n);
   std::vector<Rigid3f> T(n);
   for (int k = 0; k < n; ++k)
     model[k] = hypotheses[k].model, label[k] = hypotheses[k].label, T[k] = to_rigid(hypotheses[k].T_cam_obj);
-  const thrust::device_vector<std::int32_t> d_model = to_device(model), d_label = to_device(label);
-  const thrust::device_vector<Rigid3f> d_T = to_device(T);
-  thrust::device_vector<float> d_occ_depth;
-  thrust::device_vector<std::int32_t> d_occ_labels;
   OccluderView occ;
   if (occluders) {
-    d_occ_depth = to_device(occluders->depth_m.data);
-    d_occ_labels = to_device(occluders->labels.data);
-    occ.depth_m = ptr(d_occ_depth);
-    occ.labels = occluders->labels.empty() ? nullptr : ptr(d_occ_labels);
+    occ.depth_m = upload(w.occ_depth, occluders->depth_m.data, allocations);
+    occ.labels =
+        occluders->labels.empty() ? nullptr : upload(w.occ_labels, occluders->labels.data, allocations);
     occ.margin_m = s.occlusion_margin_m;
   }
-  const HypothesisArgs args{ptr(impl_->views), ptr(d_model), ptr(d_T), ptr(d_label)};
+  const HypothesisArgs args{ptr(w.views), upload(w.model, model, allocations),
+                            upload(w.T_cam_obj, T, allocations), upload(w.label, label, allocations)};
 
   // ROIs on the device; their sizes come back once to plan the chunks.
-  thrust::device_vector<GridRoi> d_roi(n);
+  GridRoi* d_roi = reuse(w.roi, std::size_t(n), allocations);
   thrust::transform(thrust::device, thrust::counting_iterator<int>(0), thrust::counting_iterator<int>(n),
-                    ptr(d_roi), ComputeRoi{args, camera, s.stride, s.near_m});
-  const std::vector<GridRoi> roi = to_host(d_roi);
+                    d_roi, ComputeRoi{args, camera, s.stride, s.near_m});
+  w.shape.launch("roi", 1, n);
+  const std::vector<GridRoi> roi = to_host(w.roi);
 
-  // Bytes per ROI sample: z-buffer word, resolved sample, visibility flag and slot.
-  constexpr std::size_t kPixelBytes = sizeof(DepthTriangle) + sizeof(RenderedSample) + 4 + 8;
   CloudBatch batch;
   batch.offsets.assign(std::size_t(n) + 1, 0);
-  DeviceDomain d_vertices, d_triangles, d_pixels;
-  thrust::device_vector<std::int64_t> d_slot, d_starts;
-  thrust::device_vector<Vec3f> d_verts_cam;
-  thrust::device_vector<GridSpan> d_spans;
-  thrust::device_vector<DepthTriangle> d_zbuf;
-  thrust::device_vector<RenderedSample> d_samples;
-  thrust::device_vector<std::int32_t> d_visible, d_pixel, d_cloud;
-  thrust::device_vector<float> d_x, d_y, d_z;
-  thrust::device_vector<std::uint32_t> d_rgb;
   using Items = thrust::counting_iterator<std::int64_t>;
   const std::size_t budget = s.memory_budget_bytes ? s.memory_budget_bytes : System::default_chunk_bytes;
-  for (int first = 0; first < n;) {
-    // Grow the chunk while it fits the budget (always at least one hypothesis).
-    HostDomain vertices, triangles, pixels;
-    int count = 0;
-    std::size_t bytes = 0;
-    while (first + count < n) {
-      const auto& m = impl_->host[model[first + count]];
-      const std::int64_t roi_size = roi[first + count].size();
-      const std::size_t more =
-          m.vertices * (sizeof(Vec3f) + sizeof(GridSpan)) + std::size_t(roi_size) * kPixelBytes;
-      if (count > 0 && bytes + more > budget) break;
-      bytes += more;
-      vertices.add(std::int64_t(m.vertices));
-      triangles.add(std::int64_t(m.triangles));
-      pixels.add(roi_size);
-      ++count;
-    }
-    const std::int64_t num_pixels = pixels.elements.back();
-    d_verts_cam.resize(std::size_t(vertices.elements.back()));
-    d_spans.resize(std::size_t(vertices.elements.back()));
-    d_zbuf.assign(std::size_t(num_pixels), kEmptyPixel);
-    const ChunkArgs c{first,
-                      count,
-                      ptr(d_roi) + first,
-                      d_vertices.upload(vertices),
-                      d_triangles.upload(triangles),
-                      d_pixels.upload(pixels),
-                      ptr(d_verts_cam),
-                      ptr(d_spans),
-                      ptr(d_zbuf)};
+  // Plan the chunks (perch2/cuda/launch_plan.hpp): all of a chunk's device memory fits the budget.
+  std::vector<std::int64_t> hyp_vertices(n), hyp_triangles(n), roi_samples(n);
+  for (int k = 0; k < n; ++k) {
+    hyp_vertices[k] = std::int64_t(impl_->host[model[k]].vertices);
+    hyp_triangles[k] = std::int64_t(impl_->host[model[k]].triangles);
+    roi_samples[k] = roi[k].size();
+  }
+  const std::vector<RenderChunk> chunks =
+      plan_render_chunks(hyp_vertices, hyp_triangles, roi_samples, budget, block);
+  std::size_t arena_bytes = 0;
+  for (const RenderChunk& ch : chunks) arena_bytes = std::max(arena_bytes, ch.arena_bytes());
+  DeviceArena& arena = w.arena;
+  if (arena.reserve(arena_bytes, budget)) ++allocations;
 
-    thrust::for_each(Items(0), Items(vertices.blocks.back()),
+  for (const RenderChunk& ch : chunks) {
+    const int first = ch.first, count = ch.count;
+    const HostDomain &vertices = ch.vertices, &triangles = ch.triangles, &pixels = ch.pixels;
+    const std::int64_t num_vertices = vertices.elements.back(), num_pixels = pixels.elements.back();
+    const std::size_t V = std::size_t(num_vertices), P = std::size_t(num_pixels);
+    arena.rewind();  // carve the chunk's arrays in the order of render_chunk_arena_bytes
+    Vec3f* verts_cam = arena.take<Vec3f>(V);
+    GridSpan* spans = arena.take<GridSpan>(V);
+    const Domain d_vertices = upload_domain(arena, vertices), d_triangles = upload_domain(arena, triangles),
+                 d_pixels = upload_domain(arena, pixels);
+    DepthTriangle* zbuf = arena.take<DepthTriangle>(P);
+    RenderedSample* samples = arena.take<RenderedSample>(P);
+    std::int32_t* visible = arena.take<std::int32_t>(P);
+    std::int64_t* slot = arena.take<std::int64_t>(P + 1);
+    float *x = arena.take<float>(P), *y = arena.take<float>(P), *z = arena.take<float>(P);
+    std::uint32_t* rgb = arena.take<std::uint32_t>(P);
+    std::int32_t *pixel = arena.take<std::int32_t>(P), *cloud = arena.take<std::int32_t>(P);
+    std::int64_t* starts = arena.take<std::int64_t>(std::size_t(count) + 1);
+    const ChunkArgs c{first,       count,    block,     d_roi + first, d_vertices,
+                      d_triangles, d_pixels, verts_cam, spans,         zbuf};
+
+    // Passes up to the scan need no host wait (nosync); reading the chunk total waits for them.
+    thrust::fill_n(nosync(), zbuf, num_pixels, kEmptyPixel);
+    thrust::for_each(nosync(), Items(0), Items(vertices.blocks.back()),
                      TransformVertices{args, c, camera, s.stride, s.near_m});
-    thrust::for_each(Items(0), Items(triangles.blocks.back()),
+    thrust::for_each(nosync(), Items(0), Items(triangles.blocks.back()),
                      Rasterize{args, c, camera, s.stride, s.near_m, s.cull_back_faces});
-    d_samples.resize(std::size_t(num_pixels));
-    d_visible.resize(std::size_t(num_pixels));
-    thrust::for_each(Items(0), Items(pixels.blocks.back()),
-                     Resolve{args, c, camera, s.stride, occ, ptr(d_samples), ptr(d_visible)});
+    thrust::for_each(nosync(), Items(0), Items(pixels.blocks.back()),
+                     Resolve{args, c, camera, s.stride, occ, samples, visible});
 
     // Compact: slot[k] = number of visible samples before k; slot[num_pixels] = chunk total.
-    d_slot.resize(std::size_t(num_pixels) + 1);
-    write_at(d_slot, 0, std::int64_t(0));
+    thrust::fill_n(nosync(), slot, 1, std::int64_t(0));
     // Raw pointers with an explicit policy: Thrust's OpenMP scan is sequential over device_reference
     // iterators, whose reads bind a reference through a null policy pointer (UBSan reports it).
-    thrust::inclusive_scan(thrust::device, ptr(d_visible), ptr(d_visible) + num_pixels, ptr(d_slot) + 1,
+    thrust::inclusive_scan(thrust::device(w.temp), visible, visible + num_pixels, slot + 1,
                            thrust::plus<std::int64_t>());
-    const std::int64_t total = read_at(d_slot, std::size_t(num_pixels));
-    for (auto* v : {&d_x, &d_y, &d_z}) v->resize(std::size_t(total));
-    d_rgb.resize(std::size_t(total)), d_pixel.resize(std::size_t(total)), d_cloud.resize(std::size_t(total));
-    thrust::for_each(Items(0), Items(pixels.blocks.back()),
-                     Scatter{c, ptr(d_samples), ptr(d_visible), ptr(d_slot), ptr(d_x), ptr(d_y), ptr(d_z),
-                             ptr(d_rgb), ptr(d_pixel), ptr(d_cloud)});
+    std::int64_t total = 0;
+    thrust::copy_n(thrust::device_pointer_cast(slot + num_pixels), 1, &total);
+    thrust::for_each(thrust::device, Items(0), Items(pixels.blocks.back()),
+                     Scatter{c, samples, visible, slot, x, y, z, rgb, pixel, cloud});
 
     // Per-hypothesis offsets: the slot at the start of each ROI.
-    d_starts.resize(std::size_t(count) + 1);
-    thrust::gather(thrust::device, ptr(d_pixels.elements), ptr(d_pixels.elements) + count + 1, ptr(d_slot),
-                   ptr(d_starts));
-    const std::vector<std::int64_t> starts = to_host(d_starts);
+    thrust::gather(thrust::device, d_pixels.elements, d_pixels.elements + count + 1, slot, starts);
+    std::vector<std::int64_t> host_starts;
+    append_to_host(host_starts, starts, std::size_t(count) + 1);
     const std::int64_t at = std::int64_t(batch.size());
-    for (int k = 1; k <= count; ++k) batch.offsets[first + k] = at + starts[k];
+    for (int k = 1; k <= count; ++k) batch.offsets[first + k] = at + host_starts[k];
 
     const std::size_t m = std::size_t(total);
-    append(batch.x, d_x, m), append(batch.y, d_y, m), append(batch.z, d_z, m);
-    append(batch.rgb, d_rgb, m), append(batch.pixel, d_pixel, m), append(batch.cloud, d_cloud, m);
-    first += count;
+    append_to_host(batch.x, x, m), append_to_host(batch.y, y, m), append_to_host(batch.z, z, m);
+    append_to_host(batch.rgb, rgb, m), append_to_host(batch.pixel, pixel, m),
+        append_to_host(batch.cloud, cloud, m);
+
+    w.shape.launch("transform_vertices", block, vertices.blocks.back());
+    w.shape.launch("rasterize", block, triangles.blocks.back());
+    w.shape.launch("resolve", block, pixels.blocks.back());
+    w.shape.launch("scatter", block, pixels.blocks.back());
+    // Device memory actually held for chunks: the arena (sized to the largest chunk) and scan temporaries.
+    w.shape.peak_chunk_bytes = std::max(w.shape.peak_chunk_bytes, arena.bytes() + w.temp.bytes());
   }
+  allocations += w.temp.allocations;
+  w.shape.workspace_bytes = w.arena.bytes() + w.temp.bytes() +
+                            (w.model.capacity() + w.label.capacity() + w.occ_labels.capacity()) * 4 +
+                            w.occ_depth.capacity() * 4 + w.T_cam_obj.capacity() * sizeof(Rigid3f) +
+                            w.roi.capacity() * sizeof(GridRoi);
   return batch;
 }
 

@@ -2,12 +2,32 @@
 #pragma once
 
 #include <thrust/copy.h>
+#include <thrust/device_ptr.h>
 #include <thrust/device_vector.h>
 
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_CUDA
+#include <thrust/system/cuda/execution_policy.h>
+#endif
+
+#include <algorithm>
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
+#include "perch2/cuda/launch_plan.hpp"
+
 namespace perch2::thrust_backend {
+
+/// Policy for launches the host need not wait for: on CUDA thrust::cuda::par_nosync (kernels stay ordered on
+/// the default stream; the next copy to the host or synchronising algorithm waits for them), elsewhere
+/// thrust::device (the OpenMP system runs each algorithm to completion anyway).
+inline auto nosync() {
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_CUDA
+  return thrust::cuda::par_nosync;
+#else
+  return thrust::device;
+#endif
+}
 
 template <class T>
 T* ptr(thrust::device_vector<T>& v) {
@@ -48,5 +68,110 @@ template <class T>
 void write_at(thrust::device_vector<T>& v, std::size_t i, const T& value) {
   thrust::copy_n(&value, 1, v.begin() + std::ptrdiff_t(i));
 }
+
+/// Resizes a reusable vector to n elements (contents unspecified), reallocating only when it must grow
+/// (counted in `allocations`).
+template <class T>
+T* reuse(thrust::device_vector<T>& v, std::size_t n, std::int64_t& allocations) {
+  if (v.capacity() < n) {
+    v.clear();
+    v.shrink_to_fit();
+    v.reserve(n);
+    ++allocations;
+  }
+  v.resize(n);
+  return ptr(v);
+}
+
+/// Host -> device upload into a reusable vector (see reuse).
+template <class T>
+T* upload(thrust::device_vector<T>& dst, const std::vector<T>& src, std::int64_t& allocations) {
+  T* p = reuse(dst, src.size(), allocations);
+  if (!src.empty()) thrust::copy(src.begin(), src.end(), dst.begin());
+  return p;
+}
+
+/// Bulk device -> host copy of n elements from a raw device pointer, appended to out.
+template <class T>
+void append_to_host(std::vector<T>& out, const T* device, std::size_t n) {
+  if (n == 0) return;  // Thrust's cross-system copy takes &*out even for an empty range
+  const std::size_t at = out.size();
+  out.resize(at + n);
+  const auto p = thrust::device_pointer_cast(device);
+  thrust::copy(p, p + std::ptrdiff_t(n), out.begin() + std::ptrdiff_t(at));
+}
+
+/// One device allocation reused for a stage's per-chunk buffers: each chunk carves its arrays from it (in
+/// a fixed order, 256-byte aligned), so a chunk's working memory is one figure (perch2/cuda/launch_plan.hpp)
+/// the planner can hold to a budget, and repeated chunks and calls allocate nothing.
+class DeviceArena {
+ public:
+  /// Makes the arena exactly `bytes` big if it is smaller, or larger than `max_bytes` (a smaller budget
+  /// releases memory). Returns whether it allocated.
+  bool reserve(std::size_t bytes, std::size_t max_bytes) {
+    const std::size_t words = (bytes + 7) / 8;
+    if (words <= storage_.size() && storage_.size() * 8 <= std::max(max_bytes, bytes)) return false;
+    storage_.clear();
+    storage_.shrink_to_fit();
+    storage_.resize(words);
+    return true;
+  }
+  std::size_t bytes() const { return storage_.size() * 8; }
+  void rewind() { used_ = 0; }
+  /// The next n elements of type T (uninitialised).
+  template <class T>
+  T* take(std::size_t n) {
+    T* p = reinterpret_cast<T*>(reinterpret_cast<unsigned char*>(ptr(storage_)) + used_);
+    used_ += arena_aligned(n * sizeof(T));
+    return p;
+  }
+
+ private:
+  thrust::device_vector<std::uint64_t> storage_;
+  std::size_t used_ = 0;
+};
+
+/// Temporary storage for Thrust algorithms (thrust::device(allocator)): one cached block, grown when a
+/// request does not fit, so a scan per chunk allocates once per stage object, not once per chunk.
+class TempAllocator {
+ public:
+  using value_type = char;
+  char* allocate(std::ptrdiff_t n) {
+    const std::size_t bytes = std::size_t(n);
+    if (in_use_ || bytes > block_.size()) {
+      if (in_use_) {  // a second live request (not made by the algorithms used here): a one-off block
+        ++allocations;
+        extra_.emplace_back(bytes);
+        return ptr(extra_.back());
+      }
+      block_.clear();
+      block_.shrink_to_fit();
+      block_.resize(bytes);
+      ++allocations;
+    }
+    peak_bytes = std::max(peak_bytes, bytes);
+    in_use_ = true;
+    return ptr(block_);
+  }
+  void deallocate(char* p, std::size_t) {
+    if (!block_.empty() && p == ptr(block_)) {
+      in_use_ = false;
+      return;
+    }
+    for (auto it = extra_.begin(); it != extra_.end(); ++it)
+      if (ptr(*it) == p) {
+        extra_.erase(it);
+        return;
+      }
+  }
+  std::size_t bytes() const { return block_.size(); }
+  std::int64_t allocations = 0;  ///< device allocations made (the caller resets it per call)
+  std::size_t peak_bytes = 0;    ///< largest request
+
+ private:
+  thrust::device_vector<char> block_;
+  std::vector<thrust::device_vector<char>> extra_;
+  bool in_use_ = false;
+};
 
 }  // namespace perch2::thrust_backend

@@ -42,3 +42,29 @@ PERCH2_HD inline BlockRange block_range(const std::int64_t* block_offsets,
 }
 
 }  // namespace perch2
+
+namespace perch2 {
+
+/// In-place heap sort of the positions [0, n) of a segment (device-callable: O(n log n) in one thread, no
+/// extra memory, so a segment that happens to be large, e.g. a grid cell of coincident points, cannot cost
+/// O(n^2)). less(a, b) compares and swap(a, b) exchanges the elements at positions a and b.
+template <class Less, class Swap>
+PERCH2_HD inline void heap_sort(std::int64_t n, Less less, Swap swap) {
+  auto sift = [&](std::int64_t root, std::int64_t size) {
+    while (true) {
+      std::int64_t child = 2 * root + 1;
+      if (child >= size) return;
+      if (child + 1 < size && less(child, child + 1)) ++child;
+      if (!less(root, child)) return;
+      swap(root, child);
+      root = child;
+    }
+  };
+  for (std::int64_t r = n / 2 - 1; r >= 0; --r) sift(r, n);
+  for (std::int64_t end = n - 1; end > 0; --end) {
+    swap(0, end);
+    sift(0, end);
+  }
+}
+
+}  // namespace perch2

@@ -266,7 +266,10 @@ PERCH2_HD inline int grid_knn(const GridView& g, int segment, Vec3f q, int k, fl
     knn_clear(k, idx, d2);
     grid_ball_scan(g, s, q, k, limit, idx, d2);
     if (last || idx[k - 1] >= 0) break;  // the ball holds k points: they are the k nearest
-    ball2 *= 4.f;                        // fewer than k in the ball: double its radius and rescan
+    // Fewer than k in the ball: double its radius and rescan. A zero-radius ball (the query is its cell's
+    // representative and knn_ball_cells = 0) would stay zero, so it restarts from one cell (or, should
+    // cell^2 underflow, from the smallest normal float): the loop always reaches far2.
+    ball2 = max_f(4.f * ball2, max_f(cell * cell, 1.17549435e-38f));
   }
   return knn_count(k, idx);
 }

@@ -10,6 +10,7 @@ namespace perch2::cpu {
 
 struct Backend {
   static constexpr const char* name = "cpu";
+  static constexpr bool bitwise_reproducible = true;  ///< the reference itself
   using Renderer = cpu::Renderer;
   using KnnIndex = cpu::KnnIndex;
   using Registration = cpu::Registration;

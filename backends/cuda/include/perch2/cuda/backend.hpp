@@ -12,6 +12,8 @@ namespace perch2::thrust_backend {
 template <class System>
 struct Backend {
   static constexpr const char* name = System::name;
+  /// Same results as perch2::cpu bit for bit (same float operations in the same order, no FMA).
+  static constexpr bool bitwise_reproducible = System::bitwise_reproducible;
   using Renderer = thrust_backend::Renderer<System>;
   using KnnIndex = thrust_backend::KnnIndex<System>;
   using Registration = thrust_backend::Registration<System>;

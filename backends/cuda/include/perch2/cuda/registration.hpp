@@ -30,6 +30,10 @@ class PERCH2_API Registration {
 
   std::size_t num_segments() const;
 
+  /// Passes, work items and device allocations of the last icp()/gicp() run (for gicp with an ICP warm-up:
+  /// its GICP stage). Iterations stop once no hypothesis is active (checked every few iterations).
+  LaunchShape last_launch_shape() const;
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;

@@ -23,6 +23,10 @@ class PERCH2_API Renderer {
 
   std::size_t num_models() const;
 
+  /// Passes, work items and device allocations of the last render() call (see LaunchShape); its
+  /// peak_chunk_bytes stays within RenderSettings::memory_budget_bytes whenever one hypothesis fits.
+  LaunchShape last_launch_shape() const;
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;

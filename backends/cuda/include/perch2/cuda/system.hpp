@@ -5,18 +5,74 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
 
 #include "perch2/core/export.hpp"
 
+// Floating-point contract: by default every backend rounds each product and sum as written (no fused
+// multiply-add: nvcc --fmad=false, g++/clang -ffp-contract=off), so results are bitwise equal across
+// perch2::cpu, perch2::thrust_omp and perch2::cuda. A CUDA build configured with PERCH2_CUDA_FMA=ON fuses
+// them (faster); its results then differ in the last bits, and PERCH2_CUDA_FMA is 1 for its consumers.
+#ifndef PERCH2_CUDA_FMA
+#define PERCH2_CUDA_FMA 0
+#endif
+
 namespace perch2::thrust_backend {
 
+// Work-item sizes (elements one thread handles in a pass) are a property of the system: a GPU wants ~10^5
+// threads in flight (one triangle, sample or a few points each), a CPU a few long items per core (amortising
+// each item's search for its hypothesis). They change throughput and, for registration, the order of float
+// sums (hence results in the last bits between systems; each system is deterministic).
 struct PERCH2_API CudaSystem {
   static constexpr const char* name = "cuda";
   static constexpr std::size_t default_chunk_bytes = std::size_t(256) << 20;  ///< fills a GPU
+  /// Renderer: vertices, triangles or ROI samples per work item (one per thread, the classic mapping).
+  static constexpr int render_elements_per_item = 1;
+  /// Registration: source points per work item (each writes a 124-byte partial sum of the normal
+  /// equations; 8 gives ~90k threads for 2,400 hypotheses x 300 points and ~40 partial sums per hypothesis).
+  static constexpr int registration_points_per_item = 8;
+  /// Results equal the reference backend's bit for bit (false only in a PERCH2_CUDA_FMA=ON build).
+  static constexpr bool bitwise_reproducible = PERCH2_CUDA_FMA == 0;
 };
 struct PERCH2_API OmpSystem {
   static constexpr const char* name = "thrust_omp";
   static constexpr std::size_t default_chunk_bytes = std::size_t(4) << 20;  ///< stays in cache
+  static constexpr int render_elements_per_item = 64;      ///< ~10^4 items per chunk: enough for any CPU
+  static constexpr int registration_points_per_item = 64;  ///< as measured in the README's tables
+  static constexpr bool bitwise_reproducible = true;
+};
+
+/// What the last call of a stage object launched and allocated: lets a GPU user see the launch shapes and
+/// the memory a batch needs on any machine (the figures depend on the system's work-item sizes, not on the
+/// hardware).
+struct LaunchShape {
+  struct Pass {
+    std::string name;
+    int elements_per_item = 1;   ///< elements (triangles, samples, points, ...) one work item handles
+    std::int64_t launches = 0;   ///< parallel launches of this pass in the call
+    std::int64_t items = 0;      ///< work items over all launches
+    std::int64_t max_items = 0;  ///< work items of the largest launch (the parallelism a GPU sees)
+  };
+  std::vector<Pass> passes;
+  std::int64_t device_allocations = 0;  ///< device allocations the call made (0 once workspaces are warm)
+  std::size_t peak_chunk_bytes = 0;  ///< largest chunk working memory (renderer: within memory_budget_bytes)
+  std::size_t workspace_bytes = 0;   ///< device memory the stage object keeps between calls
+
+  void launch(const std::string& pass, int elements_per_item, std::int64_t items) {
+    for (Pass& p : passes)
+      if (p.name == pass) {
+        ++p.launches, p.items += items, p.max_items = items > p.max_items ? items : p.max_items;
+        return;
+      }
+    passes.push_back({pass, elements_per_item, 1, items, items});
+  }
+  const Pass* find(const std::string& pass) const {
+    for (const Pass& p : passes)
+      if (p.name == pass) return &p;
+    return nullptr;
+  }
 };
 
 }  // namespace perch2::thrust_backend

@@ -1,0 +1,97 @@
+// Host-side launch planning of the Thrust stages: how a batch is split into chunks and work items for a
+// System's work-item sizes. The stages launch from these plans; bench_launch_shapes uses them to show the
+// launch shapes of a system this machine cannot run (CUDA) next to the ones it measures (thrust_omp).
+#pragma once
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "perch2/render/raster.hpp"
+
+namespace perch2::thrust_backend {
+
+/// Device arrays are carved at this alignment (bytes) from one allocation.
+inline std::size_t arena_aligned(std::size_t bytes) {
+  constexpr std::size_t kAlign = 256;
+  return (bytes + kAlign - 1) / kAlign * kAlign;
+}
+
+/// Offsets of one segmented domain (vertices, triangles or ROI samples) of a chunk: per hypothesis, its
+/// elements and its work items (blocks of `block` elements).
+struct HostDomain {
+  int block = 1;
+  std::vector<std::int64_t> elements{0}, blocks{0};
+  void add(std::int64_t n) {
+    elements.push_back(elements.back() + n);
+    blocks.push_back(blocks.back() + (n + block - 1) / block);
+  }
+};
+
+/// Reserve for a chunk scan's temporary storage: CUB's decoupled look-back needs ~16 bytes per tile of
+/// ~2,000 samples, Thrust's OpenMP scan none; pixels / 16 + 4 KiB bounds both.
+inline std::size_t render_scan_temp_bytes(std::int64_t pixels) {
+  return arena_aligned(std::size_t(pixels) / 16 + 4096);
+}
+
+/// Device bytes of one render chunk's arrays, in the order the renderer carves them: posed vertices and
+/// spans, three domains' offsets, z-buffer, resolved samples, visibility flags, slots, the compacted
+/// outputs (24 bytes per sample: every ROI sample may be visible) and the per-hypothesis output offsets.
+inline std::size_t render_chunk_arena_bytes(std::int64_t vertices, int count, std::int64_t pixels) {
+  const auto a = arena_aligned;
+  const std::size_t V = std::size_t(vertices), H = std::size_t(count) + 1, P = std::size_t(pixels);
+  return a(V * sizeof(Vec3f)) + a(V * sizeof(GridSpan)) + 6 * a(H * 8) + a(P * sizeof(DepthTriangle)) +
+         a(P * sizeof(RenderedSample)) + a(P * 4) + a((P + 1) * 8) + 3 * a(P * sizeof(float)) +
+         a(P * sizeof(std::uint32_t)) + 2 * a(P * sizeof(std::int32_t)) + a(H * 8);
+}
+
+/// All device working memory of one render chunk: its arrays and the scan's temporaries.
+inline std::size_t render_chunk_bytes(std::int64_t vertices, int count, std::int64_t pixels) {
+  return render_chunk_arena_bytes(vertices, count, pixels) + render_scan_temp_bytes(pixels);
+}
+
+/// Hypotheses [first, first + count) rendered together, with their three domains.
+struct RenderChunk {
+  int first = 0, count = 0;
+  HostDomain vertices, triangles, pixels;
+  std::size_t arena_bytes() const {
+    return render_chunk_arena_bytes(vertices.elements.back(), count, pixels.elements.back());
+  }
+};
+
+/// Splits a batch into chunks, each grown while its device memory (render_chunk_bytes) fits budget_bytes
+/// (a chunk always holds at least one hypothesis). Per hypothesis: its model's vertex and triangle counts
+/// and its ROI sample count; block = System::render_elements_per_item.
+inline std::vector<RenderChunk> plan_render_chunks(const std::vector<std::int64_t>& vertices,
+                                                   const std::vector<std::int64_t>& triangles,
+                                                   const std::vector<std::int64_t>& roi_samples,
+                                                   std::size_t budget_bytes, int block) {
+  const int n = int(roi_samples.size());
+  std::vector<RenderChunk> chunks;
+  for (int first = 0; first < n;) {
+    RenderChunk ch{first, 0, {block}, {block}, {block}};
+    for (int h = first; h < n; ++h) {
+      if (ch.count > 0 && render_chunk_bytes(ch.vertices.elements.back() + vertices[h], ch.count + 1,
+                                             ch.pixels.elements.back() + roi_samples[h]) > budget_bytes)
+        break;
+      ch.vertices.add(vertices[h]);
+      ch.triangles.add(triangles[h]);
+      ch.pixels.add(roi_samples[h]);
+      ++ch.count;
+    }
+    first += ch.count;
+    chunks.push_back(std::move(ch));
+  }
+  return chunks;
+}
+
+/// Work items of registration's per-iteration pass: each cloud's points in blocks of points_per_item.
+inline std::int64_t registration_items(const std::vector<std::int64_t>& cloud_offsets, int points_per_item) {
+  std::int64_t items = 0;
+  for (std::size_t c = 0; c + 1 < cloud_offsets.size(); ++c)
+    items += (cloud_offsets[c + 1] - cloud_offsets[c] + points_per_item - 1) / points_per_item;
+  return items;
+}
+
+}  // namespace perch2::thrust_backend
