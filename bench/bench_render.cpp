@@ -1,7 +1,7 @@
 // Render throughput and peak memory: 2,000 poses of a ~10k-triangle mesh, 640x480, strides 1/4/8, per
 // backend.
 //   bench_render [--runs N] [--poses N] [--stride S] [--backend embree|cpu|thrust_omp|cuda]
-//                [--model FILE --scale S] [--load N]
+//                [--model FILE --scale S] [--load N] [--budget-mib M]
 // --load N runs N busy processes alongside (a shared CPU); Embree (libembree-dev) is the peer when found.
 // Default mesh: a procedural 10,224-triangle lumpy sphere with vertex colours (always available); with
 // ../shared/data present the YCB banana (15,728 triangles, 4096^2 texture) is measured too.
@@ -32,7 +32,8 @@ namespace {
 using bench::poses;
 
 std::vector<int> strides = {1, 4, 8};
-std::string only_backend;  // empty: all
+std::string only_backend;
+std::size_t budget_bytes = 0;  // --budget-mib: RenderSettings::memory_budget_bytes (0: the backend default)
 
 template <class Renderer>
 void measure(const char* backend, Mesh& mesh, const std::vector<Hypothesis>& hyps, int runs,
@@ -41,6 +42,7 @@ void measure(const char* backend, Mesh& mesh, const std::vector<Hypothesis>& hyp
   for (std::size_t k = 0; k < strides.size(); ++k) {
     RenderSettings s;
     s.stride = strides[k];
+    s.memory_budget_bytes = budget_bytes;
     const auto [seconds, points, peak_mib] = bench::in_child([&]() -> std::array<double, 2> {
       // The child's copy-on-write image of the mesh is handed over as a user hands over a loaded model.
       std::vector<Mesh> models(1);
@@ -106,6 +108,8 @@ int main(int argc, char** argv) {
       model = argv[k + 1];
     else if (a == "--scale")
       scale = std::stof(argv[k + 1]);
+    else if (a == "--budget-mib")
+      budget_bytes = std::size_t(std::stod(argv[k + 1]) * 1024 * 1024);
     else if (a == "--load")
       load = std::stoi(argv[k + 1]);
   }
