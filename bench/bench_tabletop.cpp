@@ -2,7 +2,8 @@
 //   1. Generates N scenes (fixed seed 2020, 4-6 built-in objects each, one image per scene, origins within
 //      0.4 m of the table centre: objects over ~1 m x 1 m) into a scratch folder with perch2::synth.
 //   2. Runs each variant (the default variant on every requested backend) over them in its own process (so
-//      peak memory is per configuration), writing BOP results CSVs.
+//      peak memory is per configuration), writing BOP results CSVs. The process is this program re-run
+//      (`--child VARIANT BACKEND`), not a fork: libgomp's thread pool does not survive fork().
 //   3. Evaluates each with perch2::eval: ADD-S AUC (0-10 cm) and ADD-S < 1 cm per object and overall, mean
 //      time per scene with a per-stage breakdown, peak resident memory.
 // Usage: bench_tabletop [--scenes N (30)] [--variants perch2c,perch2a,...|all (all)]
@@ -10,6 +11,7 @@
 #include <omp.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -34,12 +36,17 @@ struct Options {
                                       SearchVariant::DepthOnlyC, SearchVariant::BfIcp};
   std::vector<cli::BackendKind> backends{cli::BackendKind::ThrustOmp, cli::BackendKind::Cpu};
   std::string dir = "/tmp/perch2_bench_tabletop";
+  std::string child_variant, child_backend;  ///< internal: run one configuration and exit
 };
 
 Options parse(int argc, char** argv) {
   Options o;
   for (int k = 1; k + 1 < argc; k += 2) {
     const std::string a = argv[k], v = argv[k + 1];
+    if (a == "--child" && k + 2 < argc) {
+      o.child_variant = v, o.child_backend = argv[k + 2];
+      return o;
+    }
     if (a == "--scenes") {
       o.scenes = std::stoi(v);
       if (o.scenes < 1) throw InvalidInput("--scenes", "must be >= 1");
@@ -71,7 +78,8 @@ void generate(const std::string& dir, int scenes) {
               summary.instances, summary.targets, summary.seconds, dir.c_str());
 }
 
-/// Runs one configuration over every target image; writes CSV and the stage times (one line of 8 numbers).
+/// Runs one configuration over every target image; writes CSV and the stage times and peak memory (one line
+/// of 10 numbers).
 void run(const dataset::BopDataset& data, SearchVariant v, cli::BackendKind b, const std::string& csv,
          const std::string& times_file) {
   const auto images = cli::targets_by_image(data);
@@ -94,15 +102,24 @@ void run(const dataset::BopDataset& data, SearchVariant v, cli::BackendKind b, c
   const TabletopTimings& t = times.sum;
   std::ofstream(times_file) << t.table << ' ' << t.observed << ' ' << t.hypotheses << ' ' << t.render << ' '
                             << t.refine << ' ' << t.cost << ' ' << t.select << ' ' << t.total << ' '
-                            << times.images << '\n';
+                            << times.images << ' ' << double(bench::status_kb("VmHWM")) / 1024.0 << '\n';
 }
 
 }  // namespace
 
 int main(int argc, char** argv) try {
   const Options o = parse(argc, argv);
-  std::printf("bench_tabletop: %s, %d OpenMP threads\n", bench::cpu_model().c_str(), omp_get_max_threads());
   const std::string data_dir = o.dir + "/dataset";
+  const auto csv_of = [&](SearchVariant v, cli::BackendKind b) {
+    return o.dir + "/" + cli::variant_name(v) + "_" + cli::backend_name(b) + ".csv";
+  };
+  if (!o.child_variant.empty()) {
+    const SearchVariant v = cli::parse_variant(o.child_variant);
+    const cli::BackendKind b = cli::parse_backend(o.child_backend);
+    run(dataset::BopDataset(data_dir), v, b, csv_of(v, b), csv_of(v, b) + ".times");
+    return 0;
+  }
+  std::printf("bench_tabletop: %s, %d OpenMP threads\n", bench::cpu_model().c_str(), omp_get_max_threads());
   generate(data_dir, o.scenes);
   const dataset::BopDataset data(data_dir);
   eval::EvalSettings es;
@@ -119,18 +136,17 @@ int main(int argc, char** argv) try {
     for (const cli::BackendKind b : o.backends) {
       if (v != SearchVariant::Perch2C && b != o.backends.front()) continue;  // backends: default variant only
       const std::string name = std::string(cli::variant_name(v)) + "/" + cli::backend_name(b);
-      const std::string csv = o.dir + "/" + cli::variant_name(v) + "_" + cli::backend_name(b) + ".csv";
-      const std::string times_file = csv + ".times";
+      const std::string csv = csv_of(v, b), times_file = csv + ".times";
       std::fprintf(stderr, "%s\n", name.c_str());
-      const auto r = bench::in_child([&]() -> std::array<double, 2> {
-        run(data, v, b, csv, times_file);
-        return {0, 0};
-      });
-      Row row{name, eval::evaluate(data, dataset::load_results_csv(csv), es, csv), {}, r[2]};
+      fs::remove(times_file);
+      const std::string command = "'" + fs::canonical("/proc/self/exe").string() + "' --dir '" + o.dir +
+                                  "' --child " + cli::variant_name(v) + " " + cli::backend_name(b);
+      if (std::system(command.c_str()) != 0) throw InvalidInput(name, "the run failed: " + command);
+      Row row{name, eval::evaluate(data, dataset::load_results_csv(csv), es, csv), {}, 0};
       std::ifstream f(times_file);
       TabletopTimings& t = row.times.sum;
       f >> t.table >> t.observed >> t.hypotheses >> t.render >> t.refine >> t.cost >> t.select >> t.total >>
-          row.times.images;
+          row.times.images >> row.peak_mib;
       if (!f) throw FileError(times_file, "missing or truncated (did the run fail?)");
       rows.push_back(std::move(row));
     }
