@@ -96,7 +96,8 @@ void run(const dataset::BopDataset& data, SearchVariant v, cli::BackendKind b, c
     const cli::ImageEstimate e = estimator.estimate(data.load_image(key.first, key.second, load), targets);
     rows.insert(rows.end(), e.rows.begin(), e.rows.end());
     times.add(e.result.timings);
-    cli::print_progress(stderr, ++done, int(images.size()), times.sum.total / done, e.result.timings.total);
+    ++done;  // before the call: its arguments' evaluation order is unspecified
+    cli::print_progress(stderr, done, int(images.size()), times.sum.total / done, e.result.timings.total);
   }
   dataset::save_results_csv(csv, rows);
   const TabletopTimings& t = times.sum;
