@@ -38,7 +38,8 @@ struct Args {
                "  perch2 render MODEL.{obj,ply} [--scale S] [--distance M] [--out DIR] [--backend ...]\n"
                "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n"
                "  perch2 eval --dataset DIR --results FILE.csv [--json OUT] (perch2 eval --help for more)\n"
-               "  perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S "
+               "  perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] "
+               "[--objects N] --seed S "
                "--out DIR\n"
                "      writes a synthetic BOP dataset (built-in or DIR's models) with degraded detections\n";
   std::exit(error.empty() ? 0 : 2);

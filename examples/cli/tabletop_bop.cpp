@@ -90,7 +90,7 @@ struct BopTabletop::Impl {
 
 BopTabletop::BopTabletop(const dataset::BopDataset& data, const std::vector<int>& obj_ids,
                          SearchVariant variant, BackendKind backend, TabletopSettings base)
-    : data_(data), obj_ids_(obj_ids), impl_(std::make_unique<Impl>()) {
+    : obj_ids_(obj_ids), impl_(std::make_unique<Impl>()) {
   if (obj_ids_.empty()) throw InvalidInput("dataset " + data.root(), "no target objects to estimate");
   std::vector<TabletopModel> models;
   for (int id : obj_ids_) {

@@ -79,7 +79,6 @@ class BopTabletop {
 
  private:
   struct Impl;
-  const dataset::BopDataset& data_;
   std::vector<int> obj_ids_;
   std::vector<Mesh> meshes_;
   std::vector<bool> yaw_symmetric_;
