@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # perch2 entry point: installs missing Debian packages, configures, builds, runs.
-#   ./run.sh demo [perch2 demo options]   build and run the built-in demo scene (writes PNGs to demo_out/)
+#   ./run.sh demo [perch2 demo options]   build and run the built-in 3-DoF demo (writes demo_out/overlay.png)
 #   ./run.sh test                         build and run every test (ctest)
 #   ./run.sh bench                        build and run the benchmarks (Release)
 #   ./run.sh cuda                         compile and link the nvcc backend (perch2::cuda); needs nvcc

@@ -1,10 +1,10 @@
 // perch2 command-line tool.
-//   perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--stride N]
+//   perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--seed S]    (examples/cli/demo.cpp)
+//   perch2 estimate --mode 3dof --dataset DIR --out FILE.csv [...]  (examples/cli/estimate.cpp)
 //   perch2 render MODEL [--scale S] [--distance M] [--out DIR] [--backend ...]
 //   perch2 eval --dataset DIR --results FILE.csv [...]   (examples/cli/eval.cpp)
 //   perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S --out DIR
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -14,7 +14,6 @@
 #include <vector>
 
 #include "cli/commands.hpp"
-#include "demo_scene.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
 #include "perch2/io/io.hpp"
@@ -32,12 +31,15 @@ struct Args {
 [[noreturn]] void usage(const std::string& error = "") {
   if (!error.empty()) std::cerr << "perch2: " << error << "\n\n";
   std::cerr << "usage:\n"
-               "  perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--stride N]\n"
-               "      renders the built-in table scene and 3-DoF pose hypotheses; writes PNGs to DIR\n"
+               "  perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--seed S]\n"
+               "      estimates the 3-DoF poses of built-in objects on a table; writes DIR/overlay.png\n"
+               "  perch2 estimate --mode 3dof --dataset DIR --out FILE.csv [--variant V] (--help for more)\n"
+               "      estimates the target objects of a BOP dataset, writes BOP results\n"
                "  perch2 render MODEL.{obj,ply} [--scale S] [--distance M] [--out DIR] [--backend ...]\n"
                "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n"
-               "  perch2 eval --dataset DIR --results FILE.csv [--json OUT] (perch2 eval --help for more)\n";
-               "  perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S "
+               "  perch2 eval --dataset DIR --results FILE.csv [--json OUT] (perch2 eval --help for more)\n"
+               "  perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] "
+               "[--objects N] --seed S "
                "--out DIR\n"
                "      writes a synthetic BOP dataset (built-in or DIR's models) with degraded detections\n";
   std::exit(error.empty() ? 0 : 2);
@@ -78,40 +80,11 @@ Args parse(int argc, char** argv) {
   return a;
 }
 
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
 /// Render with the chosen backend.
 CloudBatch render(const Args& a, const std::vector<Mesh>& models, const std::vector<Hypothesis>& hyps,
                   const Intrinsics& K, const RenderSettings& s, const Occluders* occ = nullptr) {
   if (a.backend == "cpu") return cpu::Renderer(models).render(hyps, K, s, occ);
   return thrust_omp::Backend::Renderer(models).render(hyps, K, s, occ);
-}
-
-/// Composite clouds into one frame, nearest point per pixel (full-resolution pixels).
-RgbdFrame composite(const CloudBatch& c, const Intrinsics& K) {
-  RgbdFrame f{K, DepthImage(K.width, K.height, 0.f), ColorImage(K.width, K.height, Rgb8{0, 0, 0})};
-  for (std::size_t i = 0; i < c.size(); ++i) {
-    float& d = f.depth_m.data[c.pixel[i]];
-    if (d == 0.f || c.z[i] < d) d = c.z[i], f.rgb.data[c.pixel[i]] = unpack_rgb(c.rgb[i]);
-  }
-  return f;
-}
-
-/// Depth as a picture: near = bright, far = dark, no reading = black.
-ColorImage depth_picture(const DepthImage& depth_m) {
-  float lo = 1e9f, hi = 0.f;
-  for (float d : depth_m.data)
-    if (d > 0) lo = std::min(lo, d), hi = std::max(hi, d);
-  ColorImage out(depth_m.width, depth_m.height, Rgb8{0, 0, 0});
-  for (std::size_t k = 0; k < depth_m.data.size(); ++k) {
-    const float d = depth_m.data[k];
-    if (d <= 0) continue;
-    const float t = hi > lo ? (d - lo) / (hi - lo) : 0.f;
-    out.data[k] = {std::uint8_t(255 * (1 - t)), std::uint8_t(200 * (1 - t) + 30), std::uint8_t(80 + 120 * t)};
-  }
-  return out;
 }
 
 /// Tiles of the first `count` clouds, each drawn on the stride grid.
@@ -125,62 +98,6 @@ ColorImage contact_sheet(const CloudBatch& c, const Intrinsics& K, int stride, i
       sheet((h % columns) * tw + u, (h / columns) * th + v) = unpack_rgb(c.rgb[i]);
     }
   return sheet;
-}
-
-int run_demo(const Args& a) {
-  const demo::Scene scene = demo::make_scene();
-  const Intrinsics& K = scene.camera;
-  std::filesystem::create_directories(a.out);
-
-  // 1. The observed frame: every model at its true pose, full resolution, composited.
-  std::vector<Hypothesis> truth;
-  for (std::size_t m = 0; m < scene.models.size(); ++m)
-    truth.push_back({int(m), scene.T_cam_table * scene.T_table_obj[m]});
-  RenderSettings full;
-  full.stride = 1;
-  const RgbdFrame observed = composite(render(a, scene.models, truth, K, full), K);
-  io::save_color_image(a.out + "/scene_rgb.png", observed.rgb);
-  io::save_depth_png(a.out + "/scene_depth.png", observed.depth_m);  // 16-bit, millimetres
-  io::save_color_image(a.out + "/scene_depth_view.png", depth_picture(observed.depth_m));
-
-  // 2. 3-DoF hypotheses for the can (paper defaults: 0.08 m, 22.5 deg), occluded by the observed depth.
-  std::vector<Hypothesis> hyps;
-  const float kPi = 3.14159265f;
-  for (float y = -0.16f; y <= 0.32f + 1e-4f; y += 0.08f)
-    for (float x = -0.32f; x <= 0.32f + 1e-4f; x += 0.08f)
-      for (int k = 0; k < 16; ++k) hyps.push_back({1, scene.T_cam_table * demo::on_table(x, y, k * kPi / 8)});
-  RenderSettings s;
-  s.stride = a.stride;
-  Occluders occ;
-  occ.depth_m = observed.depth_m;
-  const std::vector<Mesh> can{scene.models[1]};
-  for (auto& h : hyps) h.model = 0;
-  CloudBatch batch;
-  std::vector<double> times;
-  for (int run = 0; run < 3; ++run) {
-    const auto t0 = std::chrono::steady_clock::now();
-    batch = render(a, can, hyps, K, s, &occ);
-    times.push_back(seconds_since(t0));
-  }
-  std::sort(times.begin(), times.end());
-  std::vector<Hypothesis> every_14th;
-  CloudBatch sheet_batch;
-  for (std::size_t h = 0; h < hyps.size(); h += 14) every_14th.push_back(hyps[h]);
-  sheet_batch = render(a, can, every_14th, K, s, &occ);
-  io::save_color_image(a.out + "/hypotheses.png", contact_sheet(sheet_batch, K, s.stride, 8, 64));
-
-  std::printf("perch2 demo (backend %s)\n", a.backend.c_str());
-  std::printf("  scene: %zu models, %dx%d camera, %zu visible pixels\n", scene.models.size(), K.width,
-              K.height,
-              std::size_t(std::count_if(observed.depth_m.data.begin(), observed.depth_m.data.end(),
-                                        [](float d) { return d > 0; })));
-  std::printf(
-      "  rendered %zu 3-DoF hypotheses of the can at stride %d with occluders: %zu points, "
-      "%.1f ms (median of 3) = %.0f hypotheses/s\n",
-      hyps.size(), s.stride, batch.size(), 1e3 * times[1], double(hyps.size()) / times[1]);
-  std::printf("  wrote %s/scene_rgb.png, scene_depth.png (16-bit mm), scene_depth_view.png, hypotheses.png\n",
-              a.out.c_str());
-  return 0;
 }
 
 int run_render(const Args& a) {
@@ -218,6 +135,8 @@ int run_render(const Args& a) {
 
 int main(int argc, char** argv) {
   if (argc > 1 && std::string(argv[1]) == "eval") return run_eval(argc - 1, argv + 1);
+  if (argc > 1 && std::string(argv[1]) == "estimate") return run_estimate(argc - 1, argv + 1);
+  if (argc > 1 && std::string(argv[1]) == "demo") return run_demo(argc - 1, argv + 1);
   try {
     if (argc > 1 && std::string(argv[1]) == "generate") return run_generate(argc, argv);
   } catch (const std::exception& e) {
@@ -226,7 +145,6 @@ int main(int argc, char** argv) {
   }
   const Args a = parse(argc, argv);
   try {
-    if (a.command == "demo") return run_demo(a);
     if (a.command == "render") return run_render(a);
     if (a.command == "-h" || a.command == "--help" || a.command == "help") usage();
     usage("unknown command " + a.command);

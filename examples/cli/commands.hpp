@@ -9,3 +9,10 @@ int run_eval(int argc, char** argv);
 /// perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S --out DIR.
 /// Takes the whole command line (argv[1] is "generate").
 int run_generate(int argc, char** argv);
+
+/// perch2 estimate --mode 3dof|6dof --dataset DIR --out FILE.csv [...] (see --help). Takes the arguments
+/// after the command name.
+int run_estimate(int argc, char** argv);
+
+/// perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--seed S]. Takes the arguments after the command name.
+int run_demo(int argc, char** argv);

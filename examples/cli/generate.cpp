@@ -15,7 +15,9 @@ namespace {
 [[noreturn]] void generate_usage(const std::string& error) {
   std::cerr << "perch2 generate: " << error
             << "\nusage: perch2 generate --mode 3dof|6dof [--models DIR] [--model-scale S] --scenes N\n"
-               "                       [--images-per-scene M] --seed S --out DIR [--preview]\n"
+               "                       [--images-per-scene M] [--objects N|MIN-MAX] --seed S --out DIR "
+               "[--preview]\n"
+               "  --objects: annotated objects per scene (default 4-7)\n"
                "  --preview writes OUT/preview_{rgb,depth,masks}.png for scene 1, image 0\n";
   std::exit(2);
 }
@@ -76,7 +78,12 @@ int run_generate(int argc, char** argv) {
         settings.num_scenes = std::stoi(v), have_scenes = true;
       else if (a == "--images-per-scene")
         settings.images_per_scene = std::stoi(v);
-      else if (a == "--seed")
+      else if (a == "--objects") {
+        const auto dash = v.find('-');
+        settings.scene.min_objects = std::stoi(v.substr(0, dash));
+        settings.scene.max_objects =
+            dash == std::string::npos ? settings.scene.min_objects : std::stoi(v.substr(dash + 1));
+      } else if (a == "--seed")
         settings.seed = std::stoull(v), have_seed = true;
       else if (a == "--out")
         out = v;
