@@ -17,6 +17,10 @@ DEPS=(cmake make g++ pkg-config libeigen3-dev libflann-dev liblz4-dev libopencv-
 # toolkit CMake takes Debian's copies.
 SYSTEM_CCCL=(libthrust-dev libcub-dev libcu++-dev)
 JOBS=$(nproc)
+# libgomp's default wait policy spins at every barrier; with other work on the cores (ctest -j, a robot's other
+# processes) a descheduled thread then stalls each of the Thrust-OMP backend's many short parallel regions for
+# a whole time slice (measured: 10x slower). Passive waiting gives the cores back (README, "Under load").
+export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-passive}
 
 have_toolkit() {
   command -v nvcc >/dev/null || [ -x /usr/local/cuda/bin/nvcc ] || [ -x "${CUDA_PATH:-/nonexistent}/bin/nvcc" ]
