@@ -22,9 +22,8 @@ struct VoteVisitor final : KnnIndex::RadiusVisitor {
   VoteVisitor(const OutlierVote& v, float d2) : vote(v), delta2(d2) {}
   void visit(std::int32_t index, float d2) override { vote(index, d2); }
   float bound_m2() const override {
-    if (!vote.found) return delta2;
-    if (!vote.use_color || (vote.any_rule && vote.color_match)) return -1.f;
-    return vote.any_rule ? delta2 : vote.best_d2;
+    if (vote.done()) return -1.f;
+    return vote.found && !vote.any_rule ? vote.best_d2 : delta2;
   }
 };
 
