@@ -4,7 +4,7 @@
 //
 //   bench_search3dof [--scenes N] [--seed S] [--backend cpu|thrust_omp] [--score-stride K] [--render-stride
 //   K]
-//                    [--icp-iterations K] [--depth-only] [--no-eval]
+//                    [--icp-iterations K] [--icp-epsilon E] [--depth-only] [--no-eval]
 //
 // CPU time, not wall time, is the figure to compare on a shared machine (wall time grows with other load).
 #include <sys/resource.h>
@@ -37,6 +37,7 @@ struct Options {
   std::uint64_t seed = 8;
   std::string backend = "cpu";
   int score_stride = -1, render_stride = -1, icp_iterations = -1;
+  float icp_epsilon = -1;  ///< translation (m) and rotation (rad) convergence thresholds of the ICP
   bool depth_only = false;
   bool eval = true;  ///< --no-eval: skip ADD-S (its model kd-trees would pollute a profile of the search)
 };
@@ -66,6 +67,8 @@ Options parse(int argc, char** argv) {
       o.icp_iterations = std::atoi(next());
     else if (a == "--depth-only")
       o.depth_only = true;
+    else if (a == "--icp-epsilon")
+      o.icp_epsilon = float(std::atof(next()));
     else if (a == "--no-eval")
       o.eval = false;
     else {
@@ -119,6 +122,7 @@ int run(const Options& o) {
     if (o.render_stride > 0) s.render.stride = o.render_stride;
     if (o.icp_iterations > 0) s.icp.max_iterations = o.icp_iterations;
     if (o.depth_only) s.cost.use_color = false;
+    if (o.icp_epsilon > 0) s.icp.translation_epsilon_m = s.icp.rotation_epsilon_rad = o.icp_epsilon;
     TabletopEstimator<Backend> est(tm, s);
     const double c0 = cpu_seconds();
     const TabletopResult r = est.estimate(frame, counts, T_world_cam.inverse());

@@ -1,7 +1,7 @@
 // Reference cost stage: per point, the neighbours within delta from an exact FLANN radius search
 // (cpu::KnnIndex::radius_visit), classified by the shared OutlierVote; the search stops once the class is
-// decided. The observed points inside each hypothesis' volume
-// are found by testing every point of its segment.
+// decided. The observed points inside each hypothesis' volume are found among those within its bounding
+// sphere (the same kd-tree).
 #include "perch2/cpu/cost.hpp"
 
 #include <algorithm>
@@ -25,6 +25,20 @@ struct VoteVisitor final : KnnIndex::RadiusVisitor {
     if (vote.done()) return -1.f;
     return vote.found && !vote.any_rule ? vote.best_d2 : delta2;
   }
+};
+
+/// Lists the observed points inside a volume among those within its bounding sphere.
+struct InsideVisitor final : KnnIndex::RadiusVisitor {
+  const CloudBatch& observed;
+  const VolumeView& volume;
+  const Vec2f* vertices;
+  std::vector<std::int32_t>& list;
+  InsideVisitor(const CloudBatch& o, const VolumeView& v, const Vec2f* vx, std::vector<std::int32_t>& l)
+      : observed(o), volume(v), vertices(vx), list(l) {}
+  void visit(std::int32_t i, float) override {
+    if (inside_volume(volume, vertices, observed.point(std::size_t(i)))) list.push_back(i);
+  }
+  float bound_m2() const override { return volume.radius_m * volume.radius_m; }
 };
 
 /// Point classes (PointClass) of every query point against the index (cloud c searches segment
@@ -89,12 +103,16 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
   for (std::int64_t h = 0; h < std::int64_t(n); ++h) {
     const VolumeView& v = vol.views[std::size_t(h)];
     const std::size_t seg = std::size_t(request.observed_segment[std::size_t(h)]);
-    for (std::int64_t i = m.observed.offsets[seg]; i < m.observed.offsets[seg + 1]; ++i) {
-      const Vec3f p = m.observed.point(std::size_t(i));
-      if (v.radius_m < 0.f || (knn_sq_distance(p, v.centre_cam) <= v.radius_m * v.radius_m &&
-                               inside_volume(v, vol.vertices.data(), p)))
-        inside[std::size_t(h)].push_back(std::int32_t(i));
+    auto& list = inside[std::size_t(h)];
+    if (v.radius_m < 0.f) {
+      for (std::int64_t i = m.observed.offsets[seg]; i < m.observed.offsets[seg + 1]; ++i)
+        list.push_back(std::int32_t(i));
+      continue;
     }
+    InsideVisitor visit(m.observed, v, vol.vertices.data(), list);
+    const float centre[3] = {v.centre_cam.x, v.centre_cam.y, v.centre_cam.z};
+    m.index.radius_visit(centre, std::int32_t(seg), visit);
+    std::sort(list.begin(), list.end());  // index order, as a scan of the segment would list them
   }
   CloudBatch queries;
   std::vector<Lab<float>> query_lab;
