@@ -497,6 +497,85 @@ TEST_CASE_TEMPLATE("radius search equals brute force, sorted, with and without a
   }
 }
 
+/// Collects every visited neighbour; with `nearest`, shrinks the bound to the nearest so far; with
+/// `stop_after` > 0, ends the search after that many visits.
+struct Collect final : perch2::cpu::KnnIndex::RadiusVisitor {
+  float r2;
+  bool nearest = false;
+  int stop_after = 0;
+  std::vector<std::pair<float, std::int32_t>> seen;
+  explicit Collect(float r) : r2(r * r) {}
+  void visit(std::int32_t i, float d2) override { seen.emplace_back(d2, i); }
+  float bound_m2() const override {
+    if (stop_after > 0 && int(seen.size()) >= stop_after) return -1.f;
+    if (!nearest || seen.empty()) return r2;
+    return std::min_element(seen.begin(), seen.end())->first;
+  }
+};
+
+float flann_d2(const CloudBatch& t, std::size_t i, Vec3f q) {
+  const float dx = q.x - t.x[i], dy = q.y - t.y[i], dz = q.z - t.z[i];
+  return dx * dx + dy * dy + dz * dz;
+}
+
+TEST_CASE("cpu radius_visit visits exactly the points within the bound (brute force), and stops early") {
+  std::mt19937 rng(19);
+  const auto sphere = sphere_surface(rng, 1500, {0, 0, 0.8f}, 0.05f);
+  // Segment 1: a lattice of 0.25 m steps (exact in binary) so that points lie exactly on the radius.
+  std::vector<Vec3f> lattice;
+  for (int i = -3; i <= 3; ++i)
+    for (int j = -3; j <= 3; ++j) lattice.push_back({0.25f * float(i), 0.25f * float(j), 0.f});
+  const CloudBatch targets = make_batch({sphere, lattice, {}});
+  const perch2::cpu::KnnIndex index(targets);
+  const auto queries = perturbed(rng, sphere, 200, 0.01f, 0.002f);
+  std::size_t total = 0, bad_sets = 0, bad_nearest = 0;
+  for (const Vec3f& q : queries) {
+    const float p[3] = {q.x, q.y, q.z};
+    Collect all(0.012f);
+    index.radius_visit(p, 0, all);
+    std::vector<std::pair<float, std::int32_t>> ref;
+    for (std::size_t i = 0; i < 1500; ++i)
+      if (flann_d2(targets, i, q) <= all.r2) ref.emplace_back(flann_d2(targets, i, q), std::int32_t(i));
+    std::sort(all.seen.begin(), all.seen.end());
+    std::sort(ref.begin(), ref.end());
+    bad_sets += all.seen != ref;
+    total += ref.size();
+    Collect near(0.012f);
+    near.nearest = true;
+    index.radius_visit(p, 0, near);
+    // The nearest must be among the visits; visits are never beyond the bound at the time.
+    const bool ok = ref.empty() ? near.seen.empty()
+                                : !near.seen.empty() &&
+                                      *std::min_element(near.seen.begin(), near.seen.end()) == ref.front();
+    bad_nearest += !ok;
+  }
+  CHECK(bad_sets == 0);
+  CHECK(bad_nearest == 0);
+  CHECK(total > 1000);  // the radius finds neighbours
+
+  SUBCASE("the bound is inclusive: points exactly on the radius are visited") {
+    const float origin[3] = {0.f, 0.f, 0.f};
+    Collect c(0.5f);  // d2 = 0.25 exactly for (+-0.5, 0), (0, +-0.5)
+    index.radius_visit(origin, 1, c);
+    CHECK(c.seen.size() == 13);  // 1 + 4 + 4 (diagonal 0.125) + 4 on the radius
+  }
+  SUBCASE("a negative bound ends the search; empty segments visit nothing; bad segment throws") {
+    const float p[3] = {0.f, 0.f, 0.75f};
+    Collect c(0.1f);
+    c.stop_after = 1;
+    index.radius_visit(p, 0, c);
+    Collect all(0.1f);
+    index.radius_visit(p, 0, all);
+    CHECK(all.seen.size() > 50);
+    CHECK(c.seen.size() >= 1);
+    CHECK(c.seen.size() <= 16);  // at most the rest of the leaf being scanned (FLANN leaves here: <= 10)
+    Collect none(1.f);
+    index.radius_visit(p, 2, none);
+    CHECK(none.seen.empty());
+    CHECK_THROWS_AS(index.radius_visit(p, 3, none), std::out_of_range);
+  }
+}
+
 TEST_CASE_TEMPLATE("kNN rejects bad input with a clear error", Backend, PERCH2_CPU_RUNNABLE_BACKENDS) {
   using Index = typename Backend::KnnIndex;
   const CloudBatch targets = make_batch({{{0, 0, 1}}, {{1, 0, 1}}});

@@ -1,6 +1,7 @@
-// Reference cost stage: per point, all neighbours within delta from an exact FLANN radius search
-// (cpu::KnnIndex), classified by the shared OutlierVote. The observed points inside each hypothesis' volume
-// are found by testing every point of its segment.
+// Reference cost stage: per point, the neighbours within delta from an exact FLANN radius search
+// (cpu::KnnIndex::radius_visit), classified by the shared OutlierVote; the search stops once the class is
+// decided. The observed points inside each hypothesis' volume are found among those within its bounding
+// sphere (the same kd-tree).
 #include "perch2/cpu/cost.hpp"
 
 #include <algorithm>
@@ -12,39 +13,54 @@ namespace perch2::cpu {
 
 namespace {
 
-/// Point classes (PointClass) of every query point against the index, in chunks of whole clouds so the
-/// neighbour lists stay small.
+/// OutlierVote over an exact radius search that stops as soon as the point's class is decided: any
+/// neighbour decides a depth-only inlier, a colour match decides an AnyNeighbour inlier, and under the
+/// Nearest rule only points no farther than the nearest so far (ties included) can change the outcome.
+struct VoteVisitor final : KnnIndex::RadiusVisitor {
+  OutlierVote vote;
+  float delta2;
+  VoteVisitor(const OutlierVote& v, float d2) : vote(v), delta2(d2) {}
+  void visit(std::int32_t index, float d2) override { vote(index, d2); }
+  float bound_m2() const override {
+    if (vote.done()) return -1.f;
+    return vote.found && !vote.any_rule ? vote.best_d2 : delta2;
+  }
+};
+
+/// Lists the observed points inside a volume among those within its bounding sphere.
+struct InsideVisitor final : KnnIndex::RadiusVisitor {
+  const CloudBatch& observed;
+  const VolumeView& volume;
+  const Vec2f* vertices;
+  std::vector<std::int32_t>& list;
+  InsideVisitor(const CloudBatch& o, const VolumeView& v, const Vec2f* vx, std::vector<std::int32_t>& l)
+      : observed(o), volume(v), vertices(vx), list(l) {}
+  void visit(std::int32_t i, float) override {
+    if (inside_volume(volume, vertices, observed.point(std::size_t(i)))) list.push_back(i);
+  }
+  float bound_m2() const override { return volume.radius_m * volume.radius_m; }
+};
+
+/// Point classes (PointClass) of every query point against the index (cloud c searches segment
+/// query_segment[c]).
 std::vector<std::uint8_t> classify(const KnnIndex& index, const CloudBatch& queries,
                                    const std::vector<std::int32_t>& query_segment,
                                    const std::vector<Lab<float>>& query_lab,
                                    const std::vector<Lab<float>>& target_lab, const CostSettings& s) {
-  constexpr std::int64_t kChunkPoints = std::int64_t(1) << 15;
   std::vector<std::uint8_t> out(queries.size(), kDepthOutlier);
-  const std::size_t n = queries.num_clouds();
-  for (std::size_t c0 = 0; c0 < n;) {
-    std::size_t c1 = c0 + 1;
-    while (c1 < n && queries.offsets[c1 + 1] - queries.offsets[c0] <= kChunkPoints) ++c1;
-    const std::int64_t b = queries.offsets[c0], e = queries.offsets[c1];
-    CloudBatch chunk;
-    chunk.x.assign(queries.x.begin() + b, queries.x.begin() + e);
-    chunk.y.assign(queries.y.begin() + b, queries.y.begin() + e);
-    chunk.z.assign(queries.z.begin() + b, queries.z.begin() + e);
-    chunk.offsets.clear();
-    for (std::size_t c = c0; c <= c1; ++c) chunk.offsets.push_back(queries.offsets[c] - b);
-    const std::vector<std::int32_t> seg(query_segment.begin() + std::ptrdiff_t(c0),
-                                        query_segment.begin() + std::ptrdiff_t(c1));
-    const RadiusResult r = index.radius(chunk, seg, s.delta_m);
-#pragma omp parallel for schedule(static)
-    for (std::int64_t i = 0; i < e - b; ++i) {
-      OutlierVote vote{
-          query_lab[std::size_t(b + i)],          target_lab.data(), s.tau_c, s.lightness_factor, s.use_color,
-          s.color_rule == ColorRule::AnyNeighbour};
-      for (std::int64_t j = r.offsets[std::size_t(i)]; j < r.offsets[std::size_t(i) + 1]; ++j)
-        vote(r.index[std::size_t(j)], r.sq_distance_m2[std::size_t(j)]);
-      out[std::size_t(b + i)] = vote.result();
+  const OutlierVote blank{{},          target_lab.data(),
+                          s.tau_c,     s.lightness_factor,
+                          s.use_color, s.color_rule == ColorRule::AnyNeighbour};
+#pragma omp parallel for schedule(dynamic, 1)
+  for (std::int64_t c = 0; c < std::int64_t(queries.num_clouds()); ++c)
+    for (std::int64_t i = queries.offsets[std::size_t(c)]; i < queries.offsets[std::size_t(c) + 1]; ++i) {
+      const auto q = std::size_t(i);
+      VoteVisitor v(blank, s.delta_m * s.delta_m);
+      v.vote.lab = query_lab[q];
+      const float p[3] = {queries.x[q], queries.y[q], queries.z[q]};
+      index.radius_visit(p, query_segment[std::size_t(c)], v);
+      out[q] = v.vote.result();
     }
-    c0 = c1;
-  }
   return out;
 }
 
@@ -87,12 +103,16 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
   for (std::int64_t h = 0; h < std::int64_t(n); ++h) {
     const VolumeView& v = vol.views[std::size_t(h)];
     const std::size_t seg = std::size_t(request.observed_segment[std::size_t(h)]);
-    for (std::int64_t i = m.observed.offsets[seg]; i < m.observed.offsets[seg + 1]; ++i) {
-      const Vec3f p = m.observed.point(std::size_t(i));
-      if (v.radius_m < 0.f || (knn_sq_distance(p, v.centre_cam) <= v.radius_m * v.radius_m &&
-                               inside_volume(v, vol.vertices.data(), p)))
-        inside[std::size_t(h)].push_back(std::int32_t(i));
+    auto& list = inside[std::size_t(h)];
+    if (v.radius_m < 0.f) {
+      for (std::int64_t i = m.observed.offsets[seg]; i < m.observed.offsets[seg + 1]; ++i)
+        list.push_back(std::int32_t(i));
+      continue;
     }
+    InsideVisitor visit(m.observed, v, vol.vertices.data(), list);
+    const float centre[3] = {v.centre_cam.x, v.centre_cam.y, v.centre_cam.z};
+    m.index.radius_visit(centre, std::int32_t(seg), visit);
+    std::sort(list.begin(), list.end());  // index order, as a scan of the segment would list them
   }
   CloudBatch queries;
   std::vector<Lab<float>> query_lab;

@@ -59,6 +59,36 @@ KnnIndex::~KnnIndex() = default;
 KnnIndex::KnnIndex(KnnIndex&&) noexcept = default;
 KnnIndex& KnnIndex::operator=(KnnIndex&&) noexcept = default;
 
+namespace {
+/// FLANN result set over a RadiusVisitor. FLANN admits points with d2 < worstDist() (strict), so the bound
+/// is passed as the next float up; points it admits beyond the bound (a leaf scanned before the bound
+/// shrank) are dropped here.
+class VisitorResultSet final : public flann::ResultSet<float> {
+ public:
+  VisitorResultSet(KnnIndex::RadiusVisitor& v, std::int64_t base) : v_(v), base_(base) {}
+  bool full() const override { return true; }
+  void addPoint(float d2, std::size_t index) override {
+    if (d2 <= v_.bound_m2()) v_.visit(std::int32_t(base_ + std::int64_t(index)), d2);
+  }
+  float worstDist() const override {
+    const float b = v_.bound_m2();
+    return b < 0.f ? -1.f : std::nextafter(b, std::numeric_limits<float>::infinity());
+  }
+
+ private:
+  KnnIndex::RadiusVisitor& v_;
+  std::int64_t base_;
+};
+}  // namespace
+
+void KnnIndex::radius_visit(const float p[3], std::int32_t segment, RadiusVisitor& visitor) const {
+  const Tree* tree = impl_->trees.at(std::size_t(segment)).get();
+  if (!tree || !(visitor.bound_m2() >= 0.f)) return;
+  VisitorResultSet rs(visitor, impl_->targets.offsets[std::size_t(segment)]);
+  flann::SearchParams params = single_thread_params();
+  tree->findNeighbors(rs, p, params);
+}
+
 std::size_t KnnIndex::num_segments() const {
   return impl_->targets.num_clouds();
 }

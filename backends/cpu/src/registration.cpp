@@ -44,6 +44,26 @@ struct Indexed {
     rs.copy(idx, d2, std::size_t(n), true);
     return n;
   }
+
+  /// The nearest point of q if its squared distance is below bound_m2 (exact; the same point knn(q, 1)
+  /// returns then). The bound prunes the search: queries far from every target end early.
+  bool nearest_within(const float* q, float bound_m2, std::size_t& idx, float& d2) const {
+    if (!tree) return false;
+    struct Nearest final : flann::ResultSet<float> {
+      float worst;
+      std::size_t index = 0;
+      bool found = false;
+      explicit Nearest(float b) : worst(b) {}
+      bool full() const override { return true; }
+      void addPoint(float d, std::size_t i) override {
+        if (d < worst) worst = d, index = i, found = true;  // strict, as KNNSimpleResultSet with k = 1
+      }
+      float worstDist() const override { return worst; }
+    } rs(bound_m2);
+    tree->findNeighbors(rs, q, flann::SearchParams(flann::FLANN_CHECKS_UNLIMITED, 0.f, true));
+    idx = rs.index, d2 = rs.worst;
+    return rs.found;
+  }
 };
 
 Indexed gather(const CloudBatch& c, std::size_t cloud) {
@@ -194,6 +214,7 @@ Output register_one(const Indexed& target, const std::vector<Vec3d>* target_norm
     return M.inverse();
   };
 
+  const float search_bound = float(P.max_d2) * 1.001f + 1e-9f;
   for (int it = 1; it <= P.max_iterations; ++it) {
     out.iterations = it;
     // One pass at the candidate: new correspondences, normal equations, and the candidate's cost over the
@@ -209,7 +230,9 @@ Output register_one(const Indexed& target, const std::vector<Vec3d>* target_norm
       std::size_t j = 0;
       float d2f = 0;
       corr_new[i] = -1;
-      if (target.knn(qf, 1, &j, &d2f) == 1) {
+      // Bounded by the correspondence distance (float slack far above the rounding of d2f): a nearest point
+      // outside the bound fails the double-precision test below anyway.
+      if (target.nearest_within(qf, search_bound, j, d2f)) {
         const Vec3d d = target.point(j) - p;
         if (d.squaredNorm() <= P.max_d2) {
           corr_new[i] = std::int64_t(j);

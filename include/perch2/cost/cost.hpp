@@ -142,6 +142,9 @@ struct OutlierVote {
     if (use_color && any_rule && !color_match)
       color_match = ciede2000<float>(lab, others[index], kL) <= tau_c;
   }
+  /// True once no further neighbour can change result(): a depth-only inlier, or an AnyNeighbour colour
+  /// match (searches may stop there).
+  PERCH2_HD bool done() const { return found && (!use_color || (any_rule && color_match)); }
   PERCH2_HD std::uint8_t result() const {
     if (!found) return kDepthOutlier;
     if (!use_color) return kInlier;

@@ -274,8 +274,21 @@ PERCH2_HD inline int grid_knn(const GridView& g, int segment, Vec3f q, int k, fl
   return knn_count(k, idx);
 }
 
+namespace grid_detail {
+/// visit.done() if the visitor has it (true: it needs no more points), else false.
+template <class V>
+PERCH2_HD inline auto visitor_done(const V& v, int) -> decltype(bool(v.done())) {
+  return v.done();
+}
+template <class V>
+PERCH2_HD inline bool visitor_done(const V&, long) {
+  return false;
+}
+}  // namespace grid_detail
+
 /// Calls visit(index, d2) for every point of segment `segment` within max_distance_m of q (inclusive), in
-/// grid order (not sorted). Visits only the cells overlapping the query's ball.
+/// grid order (not sorted), until visit.done() (if the visitor has that member) returns true. Visits only
+/// the cells overlapping the query's ball.
 template <class Visit>
 PERCH2_HD inline void grid_radius_visit(const GridView& g, int segment, Vec3f q, float max_distance_m,
                                         Visit& visit) {
@@ -298,7 +311,10 @@ PERCH2_HD inline void grid_radius_visit(const GridView& g, int segment, Vec3f q,
       const std::int64_t b = g.cell_start[row + x0], e = g.cell_start[row + x1 + 1];
       for (std::int64_t i = b; i < e; ++i) {
         const float c = knn_sq_distance(g.points[i], q);
-        if (c <= max_d2) visit(g.point_index[i], c);
+        if (c <= max_d2) {
+          visit(g.point_index[i], c);
+          if (grid_detail::visitor_done(visit, 0)) return;
+        }
       }
     }
   }
