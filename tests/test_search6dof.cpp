@@ -8,6 +8,7 @@
 
 #include "perch2/search/proposals.hpp"
 #include "perch2/search/sixdof.hpp"
+#include "perch2/search/sixdof_bop.hpp"
 #include "perch2/synth/synth.hpp"
 #include "test_support.hpp"
 
@@ -467,4 +468,105 @@ TEST_CASE("6-DoF: bad inputs raise clear errors") {
   CHECK_THROWS_WITH_AS(
       SixDofEstimator<cpu::Backend>(sixdof_models(s.models), bad).estimate(s.rgbd, {s.instances[0]}),
       doctest::Contains("depth_step_m"), InvalidInput);
+}
+
+// ---- BOP-facing helpers (what the CLI calls) ----------------------------------------------------------
+
+namespace {
+
+/// The scene as a BOP image in memory: every scene object is a GT instance with its boxes and visible mask.
+dataset::BopImage bop_image_of(const Scene6& s) {
+  dataset::BopImage image;
+  image.info.scene_id = 1, image.info.im_id = 2, image.info.camera = s.rgbd.camera;
+  image.frame = s.rgbd;
+  for (std::size_t k = 0; k < s.frame.masks.size(); ++k) {
+    dataset::GtInstance g;
+    g.obj_id = 0;  // set below from the instance's model
+    g.has_info = true;
+    const auto& b = s.frame.bbox_obj[k];
+    g.bbox_obj = {b[0], b[1], b[2], b[3]};
+    dataset::Mask m(320, 240, 0);
+    for (std::size_t i = 0; i < m.data.size(); ++i) m.data[i] = s.frame.visible.data[i] == int(k) + 1;
+    const Eigen::Vector4i vb = sixdof_detail::mask_box(m);
+    g.bbox_visib = vb;
+    image.info.gt.push_back(g);
+    image.masks_visib.push_back(m);
+  }
+  return image;
+}
+
+}  // namespace
+
+TEST_CASE("6-DoF BOP helpers: instances from ground truth or detections, one result row per instance") {
+  const Scene6 s = make_scene(3, {0, 5, 7});
+  dataset::BopImage image = bop_image_of(s);
+  std::map<int, int> model_of;
+  for (std::size_t m = 0; m < s.models.size(); ++m) model_of[s.models[m].obj_id] = int(m);
+  for (std::size_t k = 0; k < s.instances.size(); ++k)
+    image.info.gt[std::size_t(s.object[k])].obj_id = s.models[std::size_t(s.instances[k].model)].obj_id;
+  // An instance hidden entirely: skipped, not an error.
+  dataset::GtInstance hidden = image.info.gt[0];
+  image.info.gt.push_back(hidden);
+  image.masks_visib.emplace_back(320, 240, 0);
+
+  const BopInstances full = bop_instances_from_gt(image, model_of, BoxKind::Full);
+  REQUIRE(full.instances.size() == s.instances.size());
+  CHECK(full.skipped == std::vector<int>{int(image.info.gt.size()) - 1});
+  for (std::size_t k = 0; k < full.instances.size(); ++k) {
+    const auto& g = image.info.gt[std::size_t(full.sources[k])];
+    CHECK(full.instances[k].box_xywh == g.bbox_obj);
+    CHECK(full.obj_ids[k] == g.obj_id);
+    CHECK(full.instances[k].model == model_of.at(g.obj_id));
+  }
+  const BopInstances visible = bop_instances_from_gt(image, model_of, BoxKind::Visible);
+  CHECK(visible.instances[0].box_xywh == image.info.gt[std::size_t(visible.sources[0])].bbox_visib);
+
+  // Detections: RLE masks, float boxes, a score threshold.
+  std::vector<dataset::Detection> dets;
+  for (std::size_t k = 0; k < full.instances.size(); ++k) {
+    dataset::Detection d;
+    d.scene_id = 1, d.image_id = 2, d.category_id = full.obj_ids[k], d.score = 0.5f + 0.1f * float(k);
+    const auto& b = full.instances[k].box_xywh;
+    d.bbox = {float(b[0]) + 0.4f, float(b[1]), float(b[2]), float(b[3])};
+    d.segmentation = dataset::rle_encode(full.instances[k].mask);
+    dets.push_back(d);
+  }
+  const BopInstances from_dets = bop_instances_from_detections(image, dets, {0, 1, 2}, model_of, 0.55f);
+  CHECK(from_dets.sources == std::vector<int>{1, 2});  // detection 0 scores below 0.55
+  CHECK(from_dets.instances[0].mask.data == full.instances[1].mask.data);
+  CHECK(from_dets.instances[0].box_xywh == full.instances[1].box_xywh);
+
+  SixDofSettings st = test_settings();
+  st.proposals.viewpoints = 6;  // rows, not accuracy, are tested here
+  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  SixDofResult r;
+  const auto rows = estimate_bop_image(estimator, image, full, &r);
+  REQUIRE(rows.size() == full.instances.size());
+  for (std::size_t k = 0; k < rows.size(); ++k) {
+    CHECK(rows[k].scene_id == 1);
+    CHECK(rows[k].im_id == 2);
+    CHECK(rows[k].obj_id == full.obj_ids[k]);
+    CHECK(rows[k].score >= 0.0);
+    CHECK(rows[k].score <= 1.0);
+    CHECK(rows[k].time_s == doctest::Approx(r.timings.total));
+    CHECK(is_valid_pose(rows[k].T_cam_obj));
+  }
+  CHECK(estimate_bop_image(estimator, image, BopInstances{}).empty());
+
+  // Bad inputs: an obj_id without a model, masks not loaded, a malformed RLE.
+  std::map<int, int> missing = model_of;
+  missing.erase(full.obj_ids[0]);
+  CHECK_THROWS_WITH_AS(bop_instances_from_gt(image, missing), doctest::Contains("has no model"),
+                       InvalidInput);
+  CHECK_THROWS_WITH_AS(bop_instances_from_detections(image, dets, {0}, missing),
+                       doctest::Contains("has no model"), InvalidInput);
+  dataset::BopImage no_masks = image;
+  no_masks.masks_visib.clear();
+  CHECK_THROWS_WITH_AS(bop_instances_from_gt(no_masks, model_of), doctest::Contains("load mask_visib"),
+                       InvalidInput);
+  dets[1].segmentation.counts.pop_back();  // runs no longer cover the image
+  CHECK_THROWS_AS(bop_instances_from_detections(image, dets, {1}, model_of), InvalidInput);
+  dets[2].segmentation = dataset::rle_encode(dataset::Mask(10, 10, 1));  // another image's size
+  CHECK_THROWS_WITH_AS(bop_instances_from_detections(image, dets, {2}, model_of),
+                       doctest::Contains("detection 2 mask"), InvalidInput);
 }
