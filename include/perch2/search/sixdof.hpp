@@ -66,7 +66,7 @@ struct SixDofInstance {
 };
 
 struct SixDofSettings {
-  ProposalSettings proposals;  ///< 80 viewpoints x 4 in-plane x depths every 0.02 m (see proposals.hpp)
+  ProposalSettings proposals;  ///< 40 viewpoints x 4 in-plane x <= 3 depths every 0.02 m (proposals.hpp)
   ObservedCloudSettings observed{2};  ///< observed points (GICP targets, J_o) on this stride grid
   /// Renders before refinement. Stride 4 at 640 x 480 (the authors used 8) keeps hundreds of points on a
   /// YCB-sized object at 1 m.
