@@ -1,0 +1,416 @@
+// 6-DoF PERCH 2.0 (Section V, Fig. 4): the full pose of each detected instance (model, mask, box) in one
+// RGB-D frame, by rendering mask-driven pose proposals, refining every one with GICP against its own
+// instance's observed points, re-rendering and scoring them with the RGB-D explanation cost.
+//
+//   perch2::SixDofEstimator<perch2::cpu::Backend> estimator({{mesh, symmetries}, ...});
+//   perch2::SixDofResult r = estimator.estimate(frame, {{model, mask, box_xywh}, ...});
+//   for (const auto& p : r.poses) use(p.instance, p.model, p.T_cam_obj, p.score);
+//
+// Pipeline per frame (timed per stage in SixDofResult::timings):
+//   observed   instance k's pixels carry label k + 1 (later instances win overlaps). Each segment is
+//              trimmed for depth consistency: mask pixels whose depth lies outside the segment's robust
+//              range [q_lo - trim_margin_m, min(q_hi + trim_margin_m, q_lo + diameter)] (a mask bleeding
+//              onto the table behind or a neighbour in front) lose the label and count as background.
+//              The labelled points on the observed stride grid are the per-instance segments (GICP
+//              targets, J_o's points).
+//   proposals  rotations (viewpoints x in-plane, symmetry de-duplicated) x depths on the box centre's ray
+//              (perch2/search/proposals.hpp)
+//   per chunk of hypotheses (sized to memory_budget_bytes, so 10x the proposals run in the same memory):
+//     render   at render.stride, occluders = observed depth with labels: only other instances' or
+//              background pixels hide a hypothesis (its own label never does)
+//     refine   GICP (ICP warm-up first: starts are up to half a proposal spacing off) against the
+//              hypothesis' own segment; then re-rendered and a second GICP pass with a tighter cap, so a
+//              badly trimmed mask's remaining stray points cannot pull the converged pose
+//     cost     re-rendered at score_stride; RGB-D cost (perch2/cost/cost.hpp) with J_o over the whole
+//              segment of the instance (volume -1)
+//     select   keeps the lowest-cost acceptable hypothesis per instance
+//   score      1 - (rendered outliers + unexplained observed points) / (rendered + observed points), in
+//              [0, 1]: the fraction of both clouds that the pose explains (BOP's score column)
+#pragma once
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "perch2/core/error.hpp"
+#include "perch2/core/image.hpp"
+#include "perch2/core/mesh.hpp"
+#include "perch2/core/observed.hpp"
+#include "perch2/core/pose.hpp"
+#include "perch2/cost/cost.hpp"
+#include "perch2/registration/registration.hpp"
+#include "perch2/render/render.hpp"
+#include "perch2/search/proposals.hpp"
+
+namespace perch2 {
+
+/// A model the 6-DoF search can pose: the mesh (metres, BOP frame: origin at the bounding-box centre) and
+/// its symmetries (models_info.json).
+struct SixDofModel {
+  Mesh mesh;
+  ModelSymmetries symmetries;
+};
+
+/// One detected instance: which model, its mask (non-zero = the instance, full resolution) and its box
+/// (x, y, w, h in pixels; "full"/amodal or visible). A box with w or h < 0 is taken from the mask.
+struct SixDofInstance {
+  int model = 0;
+  Image<std::uint8_t> mask;
+  Eigen::Vector4i box_xywh{-1, -1, -1, -1};
+};
+
+struct SixDofSettings {
+  ProposalSettings proposals;  ///< 40 viewpoints x 4 in-plane x <= 3 depths every 0.02 m (proposals.hpp)
+  ObservedCloudSettings observed{2};  ///< observed points (GICP targets, J_o) on this stride grid
+  /// Renders before refinement. Stride 4 at 640 x 480 (the authors used 8) keeps hundreds of points on a
+  /// YCB-sized object at 1 m.
+  RenderSettings render;
+  /// Stride of the re-render that is scored (>= 1). 4 at 640 x 480: on two generated 640 x 480 scenes
+  /// (9 instances) every pose had the same ADD-S (< 3 mm) as with stride 2, at a third of the cost time.
+  int score_stride = 4;
+  /// First refinement: ICP warm-up then GICP. The cap covers the proposal error: a viewpoint/in-plane step
+  /// of ~23-90 deg moves a 10 cm object's points by up to ~4 cm, and the depth step by up to 1 cm.
+  GicpSettings gicp = [] {
+    GicpSettings s;
+    s.max_correspondence_distance_m = 0.04f;
+    s.max_iterations = 20;
+    s.icp_warmup_iterations = 15;
+    return s;
+  }();
+  /// Second refinement (after a re-render at the refined pose) with this tighter cap, metres; 0 = none.
+  float second_pass_cap_m = 0.012f;
+  int second_pass_iterations = 15;  ///< GICP passes of the second refinement (>= 1)
+  CostSettings cost = [] {
+    CostSettings c;
+    c.delta_m = 0.01f;  // authors' 6-DoF delta
+    return c;
+  }();
+  /// Depth-consistency trimming (see the file comment): quantiles of the mask's depths and the margin.
+  float trim_quantile_low = 0.1f, trim_quantile_high = 0.9f;
+  float trim_margin_m = 0.03f;   ///< metres; < 0 turns trimming off
+  int min_rendered_points = 10;  ///< a hypothesis showing fewer points (at score_stride) is not selected
+  /// Working memory of the hypotheses in flight (rendered, refined and scored clouds and the registration's
+  /// per-point state), bytes; the hypotheses are processed in chunks that fit (at least one hypothesis per
+  /// chunk). The renderer's own working memory is RenderSettings::memory_budget_bytes.
+  std::size_t memory_budget_bytes = std::size_t(256) << 20;
+  /// Estimated bytes per rendered point in flight (clouds x3 renders, GICP covariances and correspondences).
+  std::size_t bytes_per_point = 256;
+};
+
+struct SixDofPose {
+  int instance = 0;  ///< index into the instances given
+  int model = 0;
+  Pose T_cam_obj = Pose::Identity();
+  float score = 0;     ///< in [0, 1], higher is better (see the file comment)
+  bool found = false;  ///< false: no hypothesis showed min_rendered_points (pose = the lowest cost anyway)
+  CostBreakdown cost;
+};
+
+struct SixDofTimings {  ///< seconds, wall clock
+  double observed = 0, proposals = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0;
+};
+
+struct SixDofResult {
+  std::vector<SixDofPose> poses;            ///< one per instance, in input order
+  std::vector<std::size_t> hypotheses;      ///< proposals per instance
+  std::vector<std::size_t> rotations;       ///< rotation proposals per instance (after symmetry)
+  std::vector<std::size_t> depths;          ///< proposal depths per instance
+  std::vector<std::size_t> segment_points;  ///< observed points per instance after trimming
+  std::vector<std::size_t> trimmed_pixels;  ///< mask pixels dropped by the depth-consistency trimming
+  std::size_t hypotheses_total = 0, chunks = 0, chunk_hypotheses = 0;
+  /// Largest chunk's estimated working memory (its rendered points x bytes_per_point), bytes.
+  std::size_t peak_chunk_bytes = 0;
+  SixDofTimings timings;
+};
+
+namespace sixdof_detail {
+
+using Clock = std::chrono::steady_clock;
+inline double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+/// Bounding box (x, y, w = x_max - x_min, h) of a mask's non-zero pixels; w = -1 if none.
+inline Eigen::Vector4i mask_box(const Image<std::uint8_t>& mask) {
+  int x0 = mask.width, y0 = mask.height, x1 = -1, y1 = -1;
+  for (int v = 0; v < mask.height; ++v)
+    for (int u = 0; u < mask.width; ++u)
+      if (mask(u, v)) x0 = std::min(x0, u), x1 = std::max(x1, u), y0 = std::min(y0, v), y1 = std::max(y1, v);
+  if (x1 < 0) return {-1, -1, -1, -1};
+  return {x0, y0, x1 - x0, y1 - y0};
+}
+
+inline float model_diameter_bound(const Mesh& m) {
+  float r = 0;
+  for (const auto& p : m.vertices) r = std::max(r, p.norm());
+  return 2.f * r;  // >= the diameter; exact for a model symmetric about its centre
+}
+
+/// Moves every point of cloud c by T[c].
+inline void transform_clouds(CloudBatch& b, const std::vector<Pose>& T) {
+  for (std::size_t c = 0; c < b.num_clouds(); ++c)
+    for (auto i = b.offsets[c]; i < b.offsets[c + 1]; ++i) {
+      const Eigen::Vector3f p = T[c] * Eigen::Vector3f(b.x[i], b.y[i], b.z[i]);
+      b.x[i] = p.x(), b.y[i] = p.y(), b.z[i] = p.z();
+    }
+}
+
+}  // namespace sixdof_detail
+
+template <class Backend>
+class SixDofEstimator {
+ public:
+  /// Validates the models and uploads them to the backend's renderer. Throws InvalidInput on no models or a
+  /// bad mesh.
+  explicit SixDofEstimator(std::vector<SixDofModel> models, SixDofSettings settings = {})
+      : models_(std::move(models)), settings_(std::move(settings)), renderer_(meshes_of(models_)) {
+    for (const auto& m : models_) diameter_.push_back(sixdof_detail::model_diameter_bound(m.mesh));
+  }
+
+  const SixDofSettings& settings() const { return settings_; }
+  SixDofSettings& settings() { return settings_; }
+  const std::vector<SixDofModel>& models() const { return models_; }
+
+  /// The pose of every instance. Throws InvalidInput on a malformed frame, missing colour for the RGB-D
+  /// cost, no instances, an unknown model, a mask of the wrong size, an empty mask or one without valid
+  /// depth, and bad settings.
+  SixDofResult estimate(const RgbdFrame& frame, const std::vector<SixDofInstance>& instances) const {
+    using namespace sixdof_detail;
+    const auto t_start = Clock::now();
+    validate(frame, instances);
+    const SixDofSettings& s = settings_;
+    SixDofResult result;
+    const std::size_t K = instances.size();
+
+    // ---- observed: labels, trimming, segments
+    auto t = Clock::now();
+    LabelImage labels(frame.camera.width, frame.camera.height, 0);
+    for (std::size_t k = 0; k < K; ++k)
+      for (std::size_t i = 0; i < labels.data.size(); ++i)
+        if (instances[k].mask.data[i]) labels.data[i] = std::int32_t(k + 1);
+    std::vector<std::int32_t> segment_labels;
+    for (std::size_t k = 0; k < K; ++k) {
+      result.trimmed_pixels.push_back(trim(frame.depth_m, labels, std::int32_t(k + 1), instances[k]));
+      segment_labels.push_back(std::int32_t(k + 1));
+    }
+    const CloudBatch observed = observed_segments(frame, labels, segment_labels, s.observed);
+    for (std::size_t k = 0; k < K; ++k) {
+      result.segment_points.push_back(observed.cloud_size(k));
+      if (observed.cloud_size(k) == 0)
+        throw InvalidInput("instances[" + std::to_string(k) + "]",
+                           "has no observed point on the stride-" + std::to_string(s.observed.stride) +
+                               " grid (mask too small or without depth there)");
+    }
+    const typename Backend::Registration registration(observed);
+    const typename Backend::Cost cost(observed);
+    const Occluders occluders{frame.depth_m, labels};
+    result.timings.observed = seconds_since(t);
+
+    // ---- proposals
+    t = Clock::now();
+    std::vector<Hypothesis> hyps;
+    std::vector<std::size_t> points_estimate;  // per instance: rendered points bound for the chunk size
+    for (std::size_t k = 0; k < K; ++k) {
+      const SixDofInstance& in = instances[k];
+      const std::string who = "instances[" + std::to_string(k) + "] mask";
+      const auto rotations = rotation_proposals(s.proposals, models_[in.model].symmetries);
+      Image<std::uint8_t> trimmed(labels.width, labels.height, 0);  // the mask after trimming
+      for (std::size_t i = 0; i < labels.data.size(); ++i) trimmed.data[i] = labels.data[i] == int(k + 1);
+      const auto depths = proposal_depths(frame.depth_m, trimmed, models_[in.model].mesh, s.proposals, who);
+      Eigen::Vector4i box = in.box_xywh;
+      if (box[2] < 0 || box[3] < 0) box = mask_box(in.mask);
+      const auto poses = pose_proposals(frame.camera, box_centre_px(box), rotations, depths);
+      for (const auto& T : poses) hyps.push_back({in.model, T, std::int32_t(k + 1)});
+      result.rotations.push_back(rotations.size());
+      result.depths.push_back(depths.size());
+      result.hypotheses.push_back(poses.size());
+      // The object's image at the nearest depth covers at most its diameter's projection, squared.
+      const float px = frame.camera.fx * diameter_[in.model] / std::max(depths.front(), 1e-3f);
+      const int stride = std::min(s.render.stride, s.score_stride);
+      points_estimate.push_back(std::size_t(px * px / float(stride * stride)) + 1);
+    }
+    result.hypotheses_total = hyps.size();
+    result.timings.proposals = seconds_since(t);
+
+    // ---- chunks: render, refine, re-render, cost, select
+    std::vector<float> best_total(K, std::numeric_limits<float>::infinity());
+    std::vector<SixDofPose> best(K);
+    for (std::size_t k = 0; k < K; ++k) best[k].instance = int(k), best[k].model = instances[k].model;
+    std::size_t begin = 0;
+    while (begin < hyps.size()) {
+      std::size_t end = begin, bytes = 0;
+      while (end < hyps.size()) {
+        const std::size_t b = points_estimate[std::size_t(hyps[end].label - 1)] * s.bytes_per_point;
+        if (end > begin && bytes + b > s.memory_budget_bytes) break;
+        bytes += b, ++end;
+      }
+      std::vector<Hypothesis> chunk(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
+      const std::size_t points =
+          run_chunk(frame, occluders, registration, cost, chunk, best_total, best, result);
+      result.peak_chunk_bytes = std::max(result.peak_chunk_bytes, points * s.bytes_per_point);
+      result.chunk_hypotheses = std::max(result.chunk_hypotheses, chunk.size());
+      ++result.chunks;
+      begin = end;
+    }
+    for (auto& p : best) {
+      const CostBreakdown& b = p.cost;
+      const float n = float(b.rendered_points + b.observed_in_volume);
+      p.score = n > 0
+                    ? std::clamp(1.f - float(b.rendered_outliers() + b.observed_unexplained()) / n, 0.f, 1.f)
+                    : 0.f;
+    }
+    result.poses = std::move(best);
+    result.timings.total = seconds_since(t_start);
+    return result;
+  }
+
+ private:
+  static std::vector<Mesh> meshes_of(const std::vector<SixDofModel>& models) {
+    if (models.empty()) throw InvalidInput("6-DoF models", "no models given");
+    std::vector<Mesh> out;
+    for (const auto& m : models) out.push_back(m.mesh);
+    return out;
+  }
+
+  void validate(const RgbdFrame& frame, const std::vector<SixDofInstance>& instances) const {
+    const SixDofSettings& s = settings_;
+    perch2::validate(s.proposals);
+    perch2::validate(s.gicp);
+    if (s.score_stride < 1) throw InvalidInput("SixDofSettings::score_stride", "must be >= 1");
+    if (!(s.second_pass_cap_m >= 0)) throw InvalidInput("SixDofSettings::second_pass_cap_m", "must be >= 0");
+    if (s.second_pass_iterations < 1)
+      throw InvalidInput("SixDofSettings::second_pass_iterations", "must be >= 1");
+    if (!(s.trim_quantile_low >= 0 && s.trim_quantile_low <= s.trim_quantile_high &&
+          s.trim_quantile_high <= 1))
+      throw InvalidInput("SixDofSettings::trim_quantile_*", "need 0 <= low <= high <= 1");
+    if (s.memory_budget_bytes == 0 || s.bytes_per_point == 0)
+      throw InvalidInput("SixDofSettings", "memory_budget_bytes and bytes_per_point must be > 0");
+    frame.validate("6-DoF frame");
+    if (s.cost.use_color && frame.rgb.empty())
+      throw InvalidInput("6-DoF frame",
+                         "has no colour image, which the RGB-D cost needs (set cost.use_color = false for "
+                         "the depth-only cost)");
+    if (instances.empty()) throw InvalidInput("instances", "no instances given");
+    for (std::size_t k = 0; k < instances.size(); ++k) {
+      const std::string who = "instances[" + std::to_string(k) + "]";
+      const SixDofInstance& in = instances[k];
+      if (in.model < 0 || std::size_t(in.model) >= models_.size())
+        throw InvalidInput(who, "unknown model id " + std::to_string(in.model) + " (" +
+                                    std::to_string(models_.size()) + " models)");
+      check_size(in.mask, frame.camera.width, frame.camera.height, who + " mask");
+    }
+  }
+
+  /// Depth-consistency trimming of instance `label`'s pixels (see the file comment); returns the pixels
+  /// dropped. Throws InvalidInput for an empty mask or one without valid depth.
+  std::size_t trim(const DepthImage& depth, LabelImage& labels, std::int32_t label,
+                   const SixDofInstance& in) const {
+    const SixDofSettings& s = settings_;
+    const std::string who = "instances[" + std::to_string(label - 1) + "] mask";
+    std::vector<float> z;
+    bool any = false;
+    for (std::size_t i = 0; i < labels.data.size(); ++i)
+      if (in.mask.data[i]) {
+        any = true;
+        if (labels.data[i] == label && depth.data[i] > 0) z.push_back(depth.data[i]);
+      }
+    if (!any) throw InvalidInput(who, "is empty (no pixel inside)");
+    if (z.empty()) throw InvalidInput(who, "has no valid depth reading inside it (or other masks cover it)");
+    if (s.trim_margin_m < 0) return 0;
+    std::sort(z.begin(), z.end());
+    auto quantile = [&](float q) { return z[std::size_t(std::lround(q * float(z.size() - 1)))]; };
+    const float lo = quantile(s.trim_quantile_low) - s.trim_margin_m;
+    const float hi = std::min(quantile(s.trim_quantile_high) + s.trim_margin_m,
+                              quantile(s.trim_quantile_low) + diameter_[std::size_t(in.model)]);
+    std::size_t dropped = 0;
+    for (std::size_t i = 0; i < labels.data.size(); ++i)
+      if (labels.data[i] == label && depth.data[i] > 0 && (depth.data[i] < lo || depth.data[i] > hi))
+        labels.data[i] = 0, ++dropped;
+    return dropped;
+  }
+
+  CloudBatch render(const std::vector<Hypothesis>& h, const Intrinsics& camera, int stride,
+                    const Occluders& occ, SixDofResult& result) const {
+    const auto t = sixdof_detail::Clock::now();
+    RenderSettings rs = settings_.render;
+    rs.stride = stride;
+    CloudBatch out = renderer_.render(h, camera, rs, &occ);
+    result.timings.render += sixdof_detail::seconds_since(t);
+    return out;
+  }
+
+  /// One GICP pass of every hypothesis against its own segment; moves the hypotheses.
+  void refine(std::vector<Hypothesis>& chunk, const CloudBatch& rendered,
+              const typename Backend::Registration& registration, const GicpSettings& gs,
+              SixDofResult& result) const {
+    const auto t = sixdof_detail::Clock::now();
+    std::vector<std::int32_t> segment(chunk.size());
+    for (std::size_t h = 0; h < chunk.size(); ++h) segment[h] = chunk[h].label - 1;
+    const RegistrationResult r = registration.gicp(rendered, segment, gs);
+    for (std::size_t h = 0; h < chunk.size(); ++h) {
+      Pose T = r.T_corr[h] * chunk[h].T_cam_obj;
+      T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();  // keep it rigid
+      chunk[h].T_cam_obj = T;
+    }
+    result.timings.refine += sixdof_detail::seconds_since(t);
+  }
+
+  /// Refines and scores one chunk, updating the per-instance best. Returns the chunk's rendered points.
+  std::size_t run_chunk(const RgbdFrame& frame, const Occluders& occ,
+                        const typename Backend::Registration& registration,
+                        const typename Backend::Cost& cost, std::vector<Hypothesis>& chunk,
+                        std::vector<float>& best_total, std::vector<SixDofPose>& best,
+                        SixDofResult& result) const {
+    using namespace sixdof_detail;
+    const SixDofSettings& s = settings_;
+    CloudBatch rendered = render(chunk, frame.camera, s.render.stride, occ, result);
+    std::size_t points = rendered.size();
+    refine(chunk, rendered, registration, s.gicp, result);
+    if (s.second_pass_cap_m > 0) {
+      rendered = render(chunk, frame.camera, s.render.stride, occ, result);
+      points = std::max(points, rendered.size());
+      GicpSettings tight = s.gicp;
+      tight.max_correspondence_distance_m = s.second_pass_cap_m;
+      tight.max_iterations = s.second_pass_iterations;
+      tight.icp_warmup_iterations = 0;
+      refine(chunk, rendered, registration, tight, result);
+    }
+    rendered = render(chunk, frame.camera, s.score_stride, occ, result);
+    points = std::max(points, rendered.size());
+
+    auto t = Clock::now();
+    CostRequest request;
+    for (const auto& h : chunk) request.add(h.label - 1);
+    const std::vector<CostBreakdown> costs = cost.evaluate(rendered, request, s.cost).hypotheses;
+    result.timings.cost += seconds_since(t);
+
+    t = Clock::now();
+    for (std::size_t h = 0; h < chunk.size(); ++h) {
+      const auto k = std::size_t(chunk[h].label - 1);
+      const bool acceptable = costs[h].rendered_points >= s.min_rendered_points;
+      // An acceptable hypothesis beats any unacceptable one; among equals the lower total wins.
+      const bool better =
+          (acceptable && !best[k].found) || (acceptable == best[k].found && costs[h].total < best_total[k]);
+      if (!better) continue;
+      best_total[k] = costs[h].total;
+      best[k].T_cam_obj = chunk[h].T_cam_obj;
+      best[k].found = acceptable;
+      best[k].cost = costs[h];
+    }
+    result.timings.select += seconds_since(t);
+    return points;
+  }
+
+  std::vector<SixDofModel> models_;
+  SixDofSettings settings_;
+  typename Backend::Renderer renderer_;
+  std::vector<float> diameter_;  ///< per model, an upper bound (2 x the largest vertex distance), metres
+};
+
+}  // namespace perch2
