@@ -52,15 +52,6 @@ std::array<int, 4> jitter_box(std::array<int, 4> b, float jitter, int W, int H, 
 
 }  // namespace
 
-std::array<int, 4> mask_bbox(const MaskImage& mask) {
-  int x0 = mask.width, y0 = mask.height, x1 = -1, y1 = -1;
-  for (int v = 0; v < mask.height; ++v)
-    for (int u = 0; u < mask.width; ++u)
-      if (mask(u, v)) x0 = std::min(x0, u), x1 = std::max(x1, u), y0 = std::min(y0, v), y1 = std::max(y1, v);
-  if (x1 < 0) return {-1, -1, -1, -1};
-  return {x0, y0, x1 - x0, y1 - y0};
-}
-
 std::vector<std::uint32_t> coco_rle_counts(const MaskImage& mask) {
   std::vector<std::uint32_t> counts;
   bool current = false;  // runs alternate, starting with background

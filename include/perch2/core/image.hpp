@@ -1,6 +1,8 @@
 // Row-major images and the RGB-D frame. Depth is float metres; 0 means "no reading".
 #pragma once
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -60,5 +62,16 @@ struct RgbdFrame {
     check_depth_values(depth_m, name + " depth");
   }
 };
+
+/// Bounding box (x, y, w = x_max - x_min, h = y_max - y_min) of a mask's non-zero pixels, as bop_toolkit's
+/// calc_2d_bbox; {-1, -1, -1, -1} if there are none.
+inline std::array<int, 4> mask_bbox(const Image<std::uint8_t>& mask) {
+  int x0 = mask.width, y0 = mask.height, x1 = -1, y1 = -1;
+  for (int v = 0; v < mask.height; ++v)
+    for (int u = 0; u < mask.width; ++u)
+      if (mask(u, v)) x0 = std::min(x0, u), x1 = std::max(x1, u), y0 = std::min(y0, v), y1 = std::max(y1, v);
+  if (x1 < 0) return {-1, -1, -1, -1};
+  return {x0, y0, x1 - x0, y1 - y0};
+}
 
 }  // namespace perch2

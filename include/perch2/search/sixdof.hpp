@@ -138,12 +138,8 @@ inline double seconds_since(Clock::time_point t) {
 
 /// Bounding box (x, y, w = x_max - x_min, h) of a mask's non-zero pixels; w = -1 if none.
 inline Eigen::Vector4i mask_box(const Image<std::uint8_t>& mask) {
-  int x0 = mask.width, y0 = mask.height, x1 = -1, y1 = -1;
-  for (int v = 0; v < mask.height; ++v)
-    for (int u = 0; u < mask.width; ++u)
-      if (mask(u, v)) x0 = std::min(x0, u), x1 = std::max(x1, u), y0 = std::min(y0, v), y1 = std::max(y1, v);
-  if (x1 < 0) return {-1, -1, -1, -1};
-  return {x0, y0, x1 - x0, y1 - y0};
+  const std::array<int, 4> b = mask_bbox(mask);
+  return {b[0], b[1], b[2], b[3]};
 }
 
 inline float model_diameter_bound(const Mesh& m) {

@@ -51,7 +51,6 @@ PERCH2_API std::string coco_rle_string(const MaskImage& mask);
 /// The same runs as a list (COCO's uncompressed form).
 PERCH2_API std::vector<std::uint32_t> coco_rle_counts(const MaskImage& mask);
 
-/// Bounding box (x, y, w = x_max - x_min, h = y_max - y_min) of non-zero pixels; {-1, -1, -1, -1} if none.
-PERCH2_API std::array<int, 4> mask_bbox(const MaskImage& mask);
+// Bounding boxes of masks: perch2::mask_bbox (perch2/core/image.hpp).
 
 }  // namespace perch2::synth
