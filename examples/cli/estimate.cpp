@@ -7,6 +7,7 @@
 #include <string>
 
 #include "commands.hpp"
+#include "estimate_6dof.hpp"
 #include "perch2/io/image_io.hpp"
 #include "tabletop_bop.hpp"
 
@@ -18,6 +19,7 @@ constexpr const char* kUsage =
     "usage: perch2 estimate --mode 3dof|6dof --dataset DIR --out RESULTS.csv [--split test] [--scenes A-B]\n"
     "                       [--variant perch2c|perch2a|perch2b|perch|depth-only|bf-icp]\n"
     "                       [--backend cpu|thrust_omp] [--overlays DIR] [--targets FILE]\n"
+    "                       [--masks gt|DETECTIONS.json] [--box full|visible]   (6dof)\n"
     "  Estimates the target objects (test_targets_bop19.json: inst_count per obj_id and image) of every "
     "image\n"
     "  of a BOP dataset and writes BOP results (score = 1 / (1 + cost), time = seconds per image).\n"
@@ -26,7 +28,10 @@ constexpr const char* kUsage =
     "  scene_camera.json's cam_R_w2c/cam_t_w2c (BOP world: z up, table top at z = 0) when given, else\n"
     "  estimated from the depth. Ground truth (scene_gt.json) is never used.\n"
     "  --scenes A-B (or A): only scenes A..B.  --overlays DIR: writes DIR/SCENE_IM.png with the estimated\n"
-    "  models drawn over each image.  Default variant perch2c, backend thrust_omp.\n";
+    "  models drawn over each image.  Default variant perch2c, backend thrust_omp.\n"
+    "  6dof: every target instance from its mask (--masks gt: mask_visib; or a detection file with COCO RLE\n"
+    "  masks) and box (--box full: scene_gt_info's bbox_obj, the default; visible: bbox_visib), by\n"
+    "  SixDofEstimator (proposals on the box ray, GICP, RGB-D cost); score in [0, 1].\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 estimate: " << message << "\n\n" << kUsage;
@@ -51,6 +56,7 @@ std::pair<int, int> parse_scene_range(const std::string& s) {
 
 int estimate_command(int argc, char** argv) {
   std::string mode, dataset_dir, out, variant = "perch2c", backend = "thrust_omp", overlays, scenes;
+  std::string masks = "gt", box = "full";
   dataset::DatasetOptions options;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -68,15 +74,14 @@ int estimate_command(int argc, char** argv) {
                           : a == "--scenes"   ? scenes
                           : a == "--split"    ? options.split
                           : a == "--targets"  ? options.targets_file
+                          : a == "--masks"    ? masks
+                          : a == "--box"      ? box
                                               : mode;
     if (&target == &mode && a != "--mode") return usage_error("unknown argument " + a);
     target = argv[++k];
   }
-  if (mode == "6dof") {
-    std::cerr << "perch2 estimate: --mode 6dof is not implemented yet\n";
-    return 2;
-  }
-  if (mode != "3dof") return usage_error("--mode must be 3dof or 6dof");
+  if (mode != "3dof" && mode != "6dof") return usage_error("--mode must be 3dof or 6dof");
+  if (box != "full" && box != "visible") return usage_error("--box must be full or visible");
   if (dataset_dir.empty() || out.empty()) return usage_error("--dataset and --out are required");
   if (!std::filesystem::is_directory(dataset_dir))
     throw FileError(dataset_dir, "is not a directory (expected a BOP dataset root)");
@@ -91,6 +96,7 @@ int estimate_command(int argc, char** argv) {
   if (images.empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
+  if (mode == "6dof") return cli::estimate_6dof(data, images, {masks, box == "full", out, overlays}, b);
   std::set<int> ids;
   for (const auto& [key, targets] : images)
     for (const auto& t : targets) ids.insert(t.obj_id);
