@@ -7,12 +7,12 @@
 // The targets live in the kNN stage's KnnIndex<System>: correspondences and target normals are grid_knn ball
 // searches started from its per-cell representatives (exact, within the correspondence distance cap).
 #include <thrust/copy.h>
-#include <thrust/count.h>
 #include <thrust/device_vector.h>
 #include <thrust/execution_policy.h>
 #include <thrust/fill.h>
 #include <thrust/for_each.h>
 #include <thrust/iterator/counting_iterator.h>
+#include <cuda/atomic>
 
 #include <cmath>
 #include <limits>
@@ -57,8 +57,17 @@ struct HypState {
   std::uint8_t have_acc, active, converged;
 };
 
-struct IsActive {
-  PERCH2_HD bool operator()(const HypState& st) const { return st.active != 0; }
+/// Sets *any_active to 1 if hypothesis h is still iterating. A plain flag rather than thrust::count_if: the
+/// OpenMP system's reduce binds its result through a null policy reference (UBSan reports it), and a flag is
+/// all the early stop needs (4 bytes back to the host).
+struct FlagActive {
+  const HypState* state;
+  std::int32_t* any_active;
+  PERCH2_HD void operator()(int h) const {
+    if (state[h].active == 0) return;
+    cuda::atomic_ref<std::int32_t, cuda::thread_scope_device> flag(*any_active);
+    flag.store(1, cuda::memory_order_relaxed);
+  }
 };
 
 /// Per-call constants (POD copy of the settings).
@@ -466,6 +475,7 @@ struct Registration<System>::Impl {
     thrust::device_vector<Vec3f> points, centroid, normals, sorted;
     thrust::device_vector<std::int64_t> offsets, block_begin, hyp_blocks;
     thrust::device_vector<std::int32_t> segment, block_hyp, corr, key_pixel, order, pixel, position;
+    thrust::device_vector<std::int32_t> any_active{1};
     thrust::device_vector<float> key_x;
     thrust::device_vector<reg_detail::HypState> state;
     thrust::device_vector<reg_detail::Accum> blocks;
@@ -580,7 +590,9 @@ struct Registration<System>::Impl {
     for (int it = 0; it < P.max_iterations; ++it) {
       if (it > 0 && it % reg_detail::kActiveCheckInterval == 0) {
         shape.launch("active_check", 1, num);
-        if (thrust::count_if(thrust::device(w.temp), state, state + num, reg_detail::IsActive{}) == 0) break;
+        write_at(w.any_active, 0, std::int32_t(0));
+        thrust::for_each(thrust::device, hyps, hyps + num, reg_detail::FlagActive{state, ptr(w.any_active)});
+        if (read_at(w.any_active, 0) == 0) break;
       }
       thrust::for_each(nosync(), pts, pts + num_blocks, pass);  // no host wait per iteration
       thrust::for_each(nosync(), hyps, hyps + num, step);
