@@ -2,6 +2,8 @@
 // against each other on random data, and bad input.
 #include <doctest/doctest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <random>
 
 #include "perch2/cost/cost.hpp"
@@ -153,6 +155,40 @@ TEST_CASE_TEMPLATE("colour rules: the nearest neighbour decides, or any neighbou
   CHECK(n.rendered_inliers == 1);
 }
 
+/// The colour a camera reports for a surface of colour `rgb` lit `k` times as brightly (linear light).
+std::uint32_t shaded(std::uint32_t rgb, float k) {
+  const Rgb8 c = unpack_rgb(rgb);
+  auto encode = [k](std::uint8_t code) {
+    const float lin = std::min(1.f, k * color_math::srgb_to_linear<float>(code));
+    const float v = lin <= 0.0031308f ? 12.92f * lin : 1.055f * std::pow(lin, 1.f / 2.4f) - 0.055f;
+    return std::uint8_t(std::lround(255.f * v));
+  };
+  return pack_rgb(Rgb8{encode(c.r), encode(c.g), encode(c.b)});
+}
+
+TEST_CASE_TEMPLATE("shading-invariant colours: a shaded surface matches its albedo, other hues do not", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  constexpr std::uint32_t kWhite = 0xF5F5F5, kYellow = 0xFAC828;
+  for (const std::uint32_t albedo : {kRed, kWhite})
+    for (const float k : {0.25f, 0.5f, 1.3f}) {  // in the shadow (ambient light only) ... a highlight
+      CAPTURE(albedo);
+      CAPTURE(k);
+      const typename B::Cost cost(patch(0.f, 1.f, shaded(albedo, k)));
+      CostSettings raw, invariant;
+      raw.shading_invariant = false;
+      const CloudBatch model = patch(0.f, 1.f, albedo), other = patch(0.f, 1.f, kYellow);
+      const CostBreakdown r = cost.evaluate(model, whole_segment(1), raw).hypotheses[0];
+      const CostBreakdown i = cost.evaluate(model, whole_segment(1), invariant).hypotheses[0];
+      const CostBreakdown y = cost.evaluate(other, whole_segment(1), invariant).hypotheses[0];
+      // Raw CIEDE2000 (kL = 2) fails a white label in the shadow.
+      if (albedo == kWhite && k == 0.25f) CHECK(r.rendered_color_outliers == 100);
+      CHECK(i.rendered_color_outliers == 0);
+      CHECK(i.observed_color_outliers == 0);
+      CHECK(y.rendered_color_outliers == 100);  // a yellow label explains neither a red nor a white one
+      CHECK(y.observed_color_outliers == 100);
+    }
+}
+
 TEST_CASE_TEMPLATE("normalisation and weights are applied as documented", B, PERCH2_CPU_RUNNABLE_BACKENDS) {
   const typename B::Cost cost(patch(0.f, 1.f, kRed));
   // Rendered: the rows y <= 0.008 m of the patch on the points, plus 50 points 2 cm in front.
@@ -219,32 +255,35 @@ TEST_CASE("cost: cpu and thrust_omp agree exactly on random data") {
   const cpu::Cost reference(observed);
   const thrust_omp::Backend::Cost thrust(observed);
   for (const bool colour : {true, false})
-    for (const ColorRule rule : {ColorRule::Nearest, ColorRule::AnyNeighbour}) {
-      CostSettings s;
-      s.use_color = colour, s.color_rule = rule, s.delta_m = 0.004f, s.tau_c = 12.5f;
-      const CostResult a = reference.evaluate(rendered, req, s), b = thrust.evaluate(rendered, req, s);
-      REQUIRE(a.size() == b.size());
-      int differences = 0, colour_outliers = 0, in_volume = 0, depth_outliers = 0;
-      for (std::size_t h = 0; h < a.size(); ++h) {
-        const CostBreakdown &x = a.hypotheses[h], &y = b.hypotheses[h];
-        differences += x.rendered_inliers != y.rendered_inliers ||
-                       x.rendered_depth_outliers != y.rendered_depth_outliers ||
-                       x.rendered_color_outliers != y.rendered_color_outliers ||
-                       x.observed_in_volume != y.observed_in_volume ||
-                       x.observed_depth_outliers != y.observed_depth_outliers ||
-                       x.observed_color_outliers != y.observed_color_outliers || x.total != y.total;
-        colour_outliers += x.rendered_color_outliers + x.observed_color_outliers;
-        depth_outliers += x.rendered_depth_outliers + x.observed_depth_outliers;
-        in_volume += x.observed_in_volume;
+    for (const ColorRule rule : {ColorRule::Nearest, ColorRule::AnyNeighbour})
+      for (const bool invariant : {true, false}) {
+        CostSettings s;
+        s.use_color = colour, s.color_rule = rule, s.delta_m = 0.004f, s.tau_c = 12.5f;
+        s.shading_invariant = invariant;
+        const CostResult a = reference.evaluate(rendered, req, s), b = thrust.evaluate(rendered, req, s);
+        REQUIRE(a.size() == b.size());
+        int differences = 0, colour_outliers = 0, in_volume = 0, depth_outliers = 0;
+        for (std::size_t h = 0; h < a.size(); ++h) {
+          const CostBreakdown &x = a.hypotheses[h], &y = b.hypotheses[h];
+          differences += x.rendered_inliers != y.rendered_inliers ||
+                         x.rendered_depth_outliers != y.rendered_depth_outliers ||
+                         x.rendered_color_outliers != y.rendered_color_outliers ||
+                         x.observed_in_volume != y.observed_in_volume ||
+                         x.observed_depth_outliers != y.observed_depth_outliers ||
+                         x.observed_color_outliers != y.observed_color_outliers || x.total != y.total;
+          colour_outliers += x.rendered_color_outliers + x.observed_color_outliers;
+          depth_outliers += x.rendered_depth_outliers + x.observed_depth_outliers;
+          in_volume += x.observed_in_volume;
+        }
+        CAPTURE(colour);
+        CAPTURE(int(rule));
+        CAPTURE(invariant);
+        CHECK(differences == 0);
+        // The data exercises every branch: points in volumes, depth outliers and (RGB-D) colour outliers.
+        CHECK(in_volume > 1000);
+        CHECK(depth_outliers > 100);
+        CHECK((colour_outliers > 100) == colour);
       }
-      CAPTURE(colour);
-      CAPTURE(int(rule));
-      CHECK(differences == 0);
-      // The data exercises every branch: points in volumes, depth outliers and (RGB-D) colour outliers.
-      CHECK(in_volume > 1000);
-      CHECK(depth_outliers > 100);
-      CHECK((colour_outliers > 100) == colour);
-    }
 }
 
 TEST_CASE_TEMPLATE("cost rejects bad input with a clear error", B, PERCH2_CPU_RUNNABLE_BACKENDS) {

@@ -69,8 +69,13 @@ std::vector<std::uint8_t> classify(const KnnIndex& index, const CloudBatch& quer
 struct Cost::Impl {
   CloudBatch observed;
   KnnIndex index;
-  std::vector<Lab<float>> lab;
-  explicit Impl(const CloudBatch& o) : observed(o), index(o), lab(lab_colors(o)) {}
+  std::vector<Lab<float>> lab,
+      lab_shading_invariant;  ///< comparison colours (CostSettings::shading_invariant)
+  explicit Impl(const CloudBatch& o)
+      : observed(o), index(o), lab(lab_colors(o, false)), lab_shading_invariant(lab_colors(o, true)) {}
+  const std::vector<Lab<float>>& observed_lab(const CostSettings& s) const {
+    return s.shading_invariant ? lab_shading_invariant : lab;
+  }
 };
 
 Cost::Cost(const CloudBatch& observed)
@@ -88,13 +93,13 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
   const Impl& m = *impl_;
   validate_cost_request(rendered, request, num_segments(), s);
   const std::size_t n = rendered.num_clouds();
-  const std::vector<Lab<float>> rendered_lab = lab_colors(rendered);
+  const std::vector<Lab<float>> rendered_lab = lab_colors(rendered, s.shading_invariant);
   CostResult result;
   result.hypotheses.resize(n);
 
   // J_r: every rendered point against the observed points of its hypothesis' segment.
   const std::vector<std::uint8_t> rclass =
-      classify(m.index, rendered, request.observed_segment, rendered_lab, m.lab, s);
+      classify(m.index, rendered, request.observed_segment, rendered_lab, m.observed_lab(s), s);
 
   // J_o: the observed points inside each hypothesis' volume, against that hypothesis' rendered points.
   const PackedVolumes vol = pack_volumes(request);
@@ -121,7 +126,7 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
       queries.x.push_back(m.observed.x[std::size_t(i)]);
       queries.y.push_back(m.observed.y[std::size_t(i)]);
       queries.z.push_back(m.observed.z[std::size_t(i)]);
-      query_lab.push_back(m.lab[std::size_t(i)]);
+      query_lab.push_back(m.observed_lab(s)[std::size_t(i)]);
     }
     queries.offsets.push_back(std::int64_t(queries.x.size()));
   }

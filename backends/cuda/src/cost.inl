@@ -25,7 +25,8 @@ namespace perch2::thrust_backend {
 namespace cost_kernels {
 
 struct ToLab {
-  PERCH2_HD Lab<float> operator()(std::uint32_t rgb) const { return srgb_to_lab<float>(unpack_rgb(rgb)); }
+  bool shading_invariant;
+  PERCH2_HD Lab<float> operator()(std::uint32_t rgb) const { return comparison_lab(rgb, shading_invariant); }
 };
 
 /// What a point is compared against: a grid over the other cloud and that cloud's colours.
@@ -150,7 +151,7 @@ struct Cost<System>::Impl {
   std::vector<std::int64_t> offsets_host;
   thrust::device_vector<std::int64_t> offsets;
   thrust::device_vector<Vec3f> points;
-  thrust::device_vector<Lab<float>> lab;
+  thrust::device_vector<Lab<float>> lab, lab_shading_invariant;  ///< CostSettings::shading_invariant
 
   explicit Impl(const CloudBatch& observed)
       : index(observed),
@@ -158,8 +159,13 @@ struct Cost<System>::Impl {
         offsets(to_device(observed.offsets)),
         points(to_device(cost_kernels::to_aos(observed))) {
     const thrust::device_vector<std::uint32_t> rgb = to_device(observed.rgb);
-    lab.resize(rgb.size());
-    thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(lab), cost_kernels::ToLab{});
+    lab.resize(rgb.size()), lab_shading_invariant.resize(rgb.size());
+    thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(lab), cost_kernels::ToLab{false});
+    thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(lab_shading_invariant),
+                      cost_kernels::ToLab{true});
+  }
+  const Lab<float>* observed_lab(const CostSettings& s) const {
+    return ptr(s.shading_invariant ? lab_shading_invariant : lab);
   }
 };
 
@@ -194,13 +200,13 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   const KnnIndex<System> rendered_index(rendered);
   const thrust::device_vector<std::uint32_t> rgb = to_device(rendered.rgb);
   thrust::device_vector<Lab<float>> rlab(rgb.size());
-  thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(rlab), ToLab{});
+  thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(rlab), ToLab{s.shading_invariant});
   const thrust::device_vector<std::int64_t> roffsets = to_device(rendered.offsets);
   const thrust::device_vector<std::int32_t> seg = to_device(request.observed_segment);
 
   // J_r.
   thrust::device_vector<std::uint8_t> rclass(static_cast<std::size_t>(nr));
-  const Side observed_side{m.index.view().grid, ptr(m.lab)};
+  const Side observed_side{m.index.view().grid, m.observed_lab(s)};
   thrust::transform(thrust::device, first, first + nr, ptr(rclass),
                     ClassifyRendered{observed_side, params, rendered_index.view().points, ptr(rlab),
                                      ptr(roffsets), int(n), ptr(seg)});
@@ -222,7 +228,7 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   thrust::device_vector<std::uint8_t> oclass(static_cast<std::size_t>(num_pairs));
   const Side rendered_side{rendered_index.view().grid, ptr(rlab)};
   thrust::transform(thrust::device, first, first + num_pairs, ptr(oclass),
-                    ClassifyObserved{rendered_side, params, ptr(m.points), ptr(m.lab), ptr(pair_point),
+                    ClassifyObserved{rendered_side, params, ptr(m.points), m.observed_lab(s), ptr(pair_point),
                                      ptr(pair_offsets), int(n)});
 
   // Per-hypothesis sums.

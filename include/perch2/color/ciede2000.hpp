@@ -128,17 +128,23 @@ struct D65White {
   static constexpr double X = 0.95047, Y = 1.0, Z = 1.08883;
 };
 
-/// 8-bit sRGB -> CIELAB (D65). Matrix: linear sRGB -> XYZ for the D65 white (IEC 61966-2-1, as tabulated by
-/// B. Lindbloom). White (255, 255, 255) maps to L = 100, a = b = 0; black to L = a = b = 0.
+/// Linear sRGB (1 = reference white; larger values allowed) -> CIELAB (D65). Matrix: linear sRGB -> XYZ for
+/// the D65 white (IEC 61966-2-1, as tabulated by B. Lindbloom).
 template <class T = float>
-PERCH2_HD inline Lab<T> srgb_to_lab(Rgb8 c) {
+PERCH2_HD inline Lab<T> linear_rgb_to_lab(T r, T g, T b) {
   using namespace color_math;
-  const T r = srgb_to_linear<T>(c.r), g = srgb_to_linear<T>(c.g), b = srgb_to_linear<T>(c.b);
   const T X = T(0.4124564) * r + T(0.3575761) * g + T(0.1804375) * b;
   const T Y = T(0.2126729) * r + T(0.7151522) * g + T(0.0721750) * b;
   const T Z = T(0.0193339) * r + T(0.1191920) * g + T(0.9503041) * b;
   const T fx = lab_f(X / T(D65White::X)), fy = lab_f(Y / T(D65White::Y)), fz = lab_f(Z / T(D65White::Z));
   return {T(116) * fy - T(16), T(500) * (fx - fy), T(200) * (fy - fz)};
+}
+
+/// 8-bit sRGB -> CIELAB (D65). White (255, 255, 255) maps to L = 100, a = b = 0; black to L = a = b = 0.
+template <class T = float>
+PERCH2_HD inline Lab<T> srgb_to_lab(Rgb8 c) {
+  using namespace color_math;
+  return linear_rgb_to_lab<T>(srgb_to_linear<T>(c.r), srgb_to_linear<T>(c.g), srgb_to_linear<T>(c.b));
 }
 
 /// CIEDE2000 colour difference Delta E_00 between two CIELAB colours (kC = kH = 1; the lightness parametric

@@ -70,6 +70,13 @@ struct CostSettings {
   /// down to ~60% lighting, kL = 3 to ~50%, kL = 4 to ~40% (measured on that scene; larger kL also
   /// confuses labels that differ mainly in lightness, e.g. grey vs white).
   float lightness_factor = 2.f;
+  /// Compare colours at equal luminance: before the CIELAB conversion every colour is scaled in linear RGB
+  /// to the luminance of an 18% grey (at most 10x, so near-black stays dark), which removes what shading,
+  /// shadows and exposure do to a surface (they scale its reflected light) and leaves hue and chroma to
+  /// decide. A rendered model has the texture's albedo while the camera sees it lit; without this, a
+  /// third of a correctly placed object's points can fail the colour test under ordinary lighting. Cost:
+  /// lightness alone no longer separates colours (grey vs white); hue and chroma still do.
+  bool shading_invariant = true;
   ColorRule color_rule = ColorRule::AnyNeighbour;
   Normalization normalization = Normalization::Counts;
   float weight_rendered = 1.f;  ///< weight of J_r in the total (>= 0)
@@ -353,9 +360,24 @@ inline void finish_cost(CostBreakdown& b, const CostSettings& s) {
 }
 
 /// CIELAB colours of a batch's points (CloudBatch::rgb, packed sRGB).
-inline std::vector<Lab<float>> lab_colors(const CloudBatch& c) {
+/// The CIELAB colour the colour test compares for a packed sRGB colour (see
+/// CostSettings::shading_invariant).
+PERCH2_HD inline Lab<float> comparison_lab(std::uint32_t rgb, bool shading_invariant) {
+  const Rgb8 c = unpack_rgb(rgb);
+  float r = color_math::srgb_to_linear<float>(c.r), g = color_math::srgb_to_linear<float>(c.g),
+        b = color_math::srgb_to_linear<float>(c.b);
+  if (shading_invariant) {
+    constexpr float kGrey = 0.18f, kMaxGain = 10.f;  // target luminance (L* ~ 50), largest scale
+    const float Y = 0.2126729f * r + 0.7151522f * g + 0.0721750f * b;
+    const float gain = kGrey / (Y > kGrey / kMaxGain ? Y : kGrey / kMaxGain);
+    r *= gain, g *= gain, b *= gain;
+  }
+  return linear_rgb_to_lab<float>(r, g, b);
+}
+
+inline std::vector<Lab<float>> lab_colors(const CloudBatch& c, bool shading_invariant) {
   std::vector<Lab<float>> out(c.size());
-  for (std::size_t i = 0; i < c.size(); ++i) out[i] = srgb_to_lab<float>(unpack_rgb(c.rgb[i]));
+  for (std::size_t i = 0; i < c.size(); ++i) out[i] = comparison_lab(c.rgb[i], shading_invariant);
   return out;
 }
 
