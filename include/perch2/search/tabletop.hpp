@@ -21,7 +21,8 @@
 //   render    every hypothesis at render.stride, occluders marked from the observed depth (C-PERCH)
 //   refine    (x, y, yaw) ICP against the object readings (Dof::TableXYYaw), then back onto the grid's
 //             manifold exactly
-//   cost      re-rendered at score_stride and scored (perch2/cost/cost.hpp); J_o's volume is the model's
+//   cost      re-rendered and scored (perch2/cost/cost.hpp), coarse to fine: all at coarse_score_stride,
+//             the best rescore_top per model again at score_stride; J_o's volume is the model's
 //             convex footprint prism from min_height_m to its top, posed by the hypothesis
 //   select    per model, the lowest-cost acceptable poses (min_rendered_points, min_inlier_fraction) whose
 //             footprints do not interpenetrate by more than overlap_tolerance_m, `count` of them
@@ -40,6 +41,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -126,8 +128,23 @@ struct TabletopSettings {
   ObservedCloudSettings observed{2};  ///< pixels of the frame used as observed points (stride 2)
   RenderSettings render;              ///< renders before refinement (stride 4 by default)
   int score_stride = 2;               ///< stride of the re-render that is scored (>= 1)
-  bool occluder_marking = true;       ///< observed depth nearer than a rendered pixel hides it (C-PERCH)
-  bool refine = true;                 ///< (x, y, yaw) ICP of every hypothesis before scoring
+  /// Coarse-to-fine scoring (parallel modes): every refined hypothesis is first scored at this stride,
+  /// then the best rescore_top of each model (by that coarse cost) are re-rendered and scored at
+  /// score_stride, and only those are selected from. 0 (or <= score_stride) scores everything at
+  /// score_stride.
+  int coarse_score_stride = 4;
+  int rescore_top = 24;          ///< per model and requested instance (see coarse_score_stride)
+  bool occluder_marking = true;  ///< observed depth nearer than a rendered pixel hides it (C-PERCH)
+  bool refine = true;            ///< (x, y, yaw) ICP of every hypothesis before scoring
+  /// ICP aligns at most this many of a hypothesis' rendered points (evenly spread over its render; 0 =
+  /// all; BF-ICP always uses all, its fitness is over every point): three parameters need far fewer than
+  /// a large object shows, and refinement then no longer grows with the object's size in the image.
+  int icp_max_points = 192;
+  /// After refinement, hypotheses of one model that ICP moved to the same placement (within dedupe_xy_m
+  /// in x and y and dedupe_yaw_rad in yaw; yaw ignored for yaw-symmetric models) are scored once: from a
+  /// 0.08 m / 22.5 deg grid most starts near an object converge to a few placements. 0 turns it off.
+  float dedupe_xy_m = 0.002f;
+  float dedupe_yaw_rad = 0.0175f;  ///< see dedupe_xy_m (1 deg)
   IcpSettings icp = [] {
     IcpSettings s;
     s.max_correspondence_distance_m = 0.04f;
@@ -146,6 +163,11 @@ struct TabletopSettings {
   int min_observed_in_volume = 10;
   /// Two footprints overlap when they interpenetrate by more than this (separating-axis depth), metres.
   float overlap_tolerance_m = 0.01f;
+  /// Parallel modes: placements of different models may not overlap either. Where two models' best
+  /// placements collide (same-shape cans finding the same can), the one leaving the smaller share of its
+  /// points unexplained keeps it and the other takes its next best placement. false: every model is
+  /// selected on its own, as in the paper's PERCH 2.0 (two models may then claim one object).
+  bool exclusive_placements = true;
   /// Tree mode: a placement may hide at most this fraction of its points' pixels of objects already placed.
   float tree_max_occluding_fraction = 0.02f;
   /// Fewer acceptable, non-overlapping poses than requested instances: throw InvalidInput (true) or return
@@ -188,11 +210,13 @@ struct TabletopTimings {  ///< seconds, wall clock
 struct TabletopResult {
   std::vector<TabletopPose> poses;  ///< grouped by request order, best first within a model
   Pose T_cam_world = Pose::Identity();
-  bool table_estimated = false;       ///< true if T_cam_world came from estimate_table_plane
-  std::size_t hypotheses_grid = 0;    ///< grid hypotheses before pruning
-  std::size_t hypotheses_kept = 0;    ///< ... with enough observed support
-  std::size_t hypotheses_scored = 0;  ///< scored (Tree mode: summed over levels)
-  std::vector<ObjectCount> missing;   ///< non-strict mode: instances requested but not found
+  bool table_estimated = false;        ///< true if T_cam_world came from estimate_table_plane
+  std::size_t hypotheses_grid = 0;     ///< grid hypotheses before pruning
+  std::size_t hypotheses_kept = 0;     ///< ... with enough observed support
+  std::size_t hypotheses_refined = 0;  ///< refined by ICP (Tree mode: summed over levels)
+  std::size_t hypotheses_coarse = 0;   ///< scored at coarse_score_stride (after de-duplication)
+  std::size_t hypotheses_scored = 0;   ///< scored at score_stride (Tree mode: summed over levels)
+  std::vector<ObjectCount> missing;    ///< non-strict mode: instances requested but not found
   /// With TabletopSettings::keep_scored: every scored hypothesis after refinement (Tree mode: every level),
   /// instance = -1; score as in TabletopPose.
   std::vector<TabletopPose> scored;
@@ -280,6 +304,59 @@ CloudBatch filter_points(const CloudBatch& in, Keep&& keep) {
   return out;
 }
 
+/// Candidates that landed on the same placement, kept once (the first of each): x, y quantised to
+/// `xy_m`, yaw (wrapped to [0, 2 pi)) to `yaw_rad`, yaw ignored where symmetric[model]. xy_m <= 0: all kept.
+inline std::vector<Candidate> dedupe(const std::vector<Candidate>& in, float xy_m, float yaw_rad,
+                                     const std::vector<bool>& symmetric) {
+  if (!(xy_m > 0.f)) return in;
+  constexpr float kTwoPi = 6.28318531f;
+  const std::int64_t yaw_bins = yaw_rad > 0.f ? std::max<std::int64_t>(1, std::llround(kTwoPi / yaw_rad)) : 1;
+  std::vector<std::array<std::int64_t, 4>> key(in.size());
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    const Candidate& c = in[i];
+    float yaw = std::fmod(c.yaw, kTwoPi);
+    if (yaw < 0.f) yaw += kTwoPi;
+    const bool no_yaw = symmetric[std::size_t(c.model)] || yaw_bins == 1;
+    key[i] = {c.model, std::llround(c.x / xy_m), std::llround(c.y / xy_m),
+              no_yaw ? 0 : std::llround(yaw / yaw_rad) % yaw_bins};  // 2 pi wraps to bin 0
+  }
+  std::vector<std::size_t> order(in.size());
+  std::iota(order.begin(), order.end(), std::size_t(0));
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return key[a] < key[b]; });
+  std::vector<char> keep(in.size(), 0);
+  for (std::size_t k = 0; k < order.size(); ++k)
+    keep[order[k]] = k == 0 || key[order[k]] != key[order[k - 1]];
+  std::vector<Candidate> out;
+  for (std::size_t i = 0; i < in.size(); ++i)
+    if (keep[i]) out.push_back(in[i]);
+  return out;
+}
+
+/// At most `max_points` points of every cloud, evenly spread over its points (every ceil(n / max_points)-th).
+inline CloudBatch thin_clouds(const CloudBatch& in, int max_points) {
+  if (max_points <= 0) return in;
+  CloudBatch out;
+  out.offsets = {0};
+  for (std::size_t c = 0; c < in.num_clouds(); ++c) {
+    const auto begin = std::size_t(in.offsets[c]), end = std::size_t(in.offsets[c + 1]);
+    const std::size_t step =
+        std::max<std::size_t>(1, (end - begin + std::size_t(max_points) - 1) / std::size_t(max_points));
+    for (std::size_t i = begin; i < end; i += step) {
+      out.x.push_back(in.x[i]), out.y.push_back(in.y[i]), out.z.push_back(in.z[i]);
+      out.rgb.push_back(in.rgb[i]), out.pixel.push_back(in.pixel[i]), out.cloud.push_back(in.cloud[i]);
+    }
+    out.offsets.push_back(std::int64_t(out.size()));
+  }
+  return out;
+}
+
+/// The share of a hypothesis' points (rendered and observed in its volume) it leaves unexplained: comparable
+/// across models of different sizes, unlike the raw-count total.
+inline float unexplained_fraction(const CostBreakdown& b) {
+  return float(b.rendered_outliers() + b.observed_unexplained()) /
+         float(std::max(1, b.rendered_points + b.observed_in_volume));
+}
+
 }  // namespace tabletop_detail
 
 template <class Backend>
@@ -297,6 +374,7 @@ class TabletopEstimator {
       float r2 = 0;
       for (const auto& p : footprints_.back().polygon_xy_m) r2 = std::max(r2, p.squaredNorm());
       circumradius_.push_back(std::sqrt(r2));
+      yaw_symmetric_.push_back(m.yaw_symmetric);
     }
   }
 
@@ -397,6 +475,9 @@ class TabletopEstimator {
     if (!(s.min_height_m >= 0 && s.max_height_m > s.min_height_m))
       throw InvalidInput("TabletopSettings", "needs 0 <= min_height_m < max_height_m");
     if (s.score_stride < 1) throw InvalidInput("TabletopSettings::score_stride", "must be >= 1");
+    if (s.icp_max_points < 0) throw InvalidInput("TabletopSettings::icp_max_points", "must be >= 0");
+    if (s.coarse_score_stride < 0 || (s.coarse_score_stride > s.score_stride && s.rescore_top < 1))
+      throw InvalidInput("TabletopSettings", "coarse_score_stride must be >= 0 and rescore_top >= 1");
     if (s.workspace_xy_m && (s.workspace_xy_m->isEmpty() || !s.workspace_xy_m->min().allFinite() ||
                              !s.workspace_xy_m->max().allFinite()))
       throw InvalidInput("TabletopSettings::workspace_xy_m", "must be a finite, non-empty box");
@@ -520,7 +601,9 @@ class TabletopEstimator {
     for (std::size_t h = 0; h < cands.size(); ++h) points[h] = std::int64_t(rendered.cloud_size(h));
     const auto t = tabletop_detail::Clock::now();
     const std::vector<std::int32_t> seg(cands.size(), 0);
-    RegistrationResult r = f.registration->icp(rendered, seg, icp_settings(f));
+    const int max_points = settings_.mode == SearchMode::BruteForceIcp ? 0 : settings_.icp_max_points;
+    RegistrationResult r =
+        f.registration->icp(tabletop_detail::thin_clouds(rendered, max_points), seg, icp_settings(f));
     const Pose T_world_cam = f.T_cam_world.inverse();
     for (std::size_t h = 0; h < cands.size(); ++h) {
       // Back to exact (x, y, yaw): drop the rounding that would tilt the model off the table.
@@ -582,6 +665,99 @@ class TabletopEstimator {
       result.scored.push_back(make_pose(f, cands[h], -1, scores[h], costs[h]));
   }
 
+  /// The coarse pass of coarse-to-fine scoring: scores every candidate at coarse_score_stride and keeps,
+  /// per requested model, the rescore_top * count lowest-cost acceptable ones (in their original order).
+  std::vector<Candidate> best_coarse(const Frame& f, const std::vector<Candidate>& cands,
+                                     const std::vector<ObjectCount>& objects, const Occluders* occ,
+                                     TabletopResult& result) const {
+    const TabletopSettings& s = settings_;
+    const std::vector<CostBreakdown> coarse =
+        score(f, cands, render(f, cands, s.coarse_score_stride, occ, result.timings), result.timings);
+    result.hypotheses_coarse += cands.size();
+    std::vector<std::size_t> order(cands.size());
+    std::iota(order.begin(), order.end(), std::size_t(0));
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::size_t a, std::size_t b) { return coarse[a].total < coarse[b].total; });
+    std::vector<int> quota(models_.size(), 0);
+    for (const auto& o : objects) quota[std::size_t(o.model)] = s.rescore_top * o.count;
+    // The acceptance test at the coarse stride: rendered counts scale with the sample density; the
+    // observed points in the volume do not depend on it.
+    const float density =
+        float(s.score_stride * s.score_stride) / float(s.coarse_score_stride * s.coarse_score_stride);
+    const float min_points = std::max(1.f, float(s.min_rendered_points) * density);
+    std::vector<char> keep(cands.size(), 0);
+    for (const std::size_t h : order) {
+      const CostBreakdown& b = coarse[h];
+      if (float(b.rendered_points) < min_points || b.observed_in_volume < s.min_observed_in_volume ||
+          float(b.rendered_inliers) < s.min_inlier_fraction * float(b.rendered_points))
+        continue;
+      int& q = quota[std::size_t(cands[h].model)];
+      if (q > 0) keep[h] = 1, --q;
+    }
+    std::vector<Candidate> out;
+    for (std::size_t h = 0; h < cands.size(); ++h)
+      if (keep[h]) out.push_back(cands[h]);
+    return out;
+  }
+
+  /// Selection of the parallel modes. Per model, acceptable candidates in order of score; a candidate is
+  /// taken unless it overlaps one already taken of the same model (or, with exclusive_placements, of any
+  /// model). Across models, the model whose next candidate explains its points best (smallest unexplained
+  /// share; BF-ICP: smallest fitness) takes first. Appends the poses to result (grouped by request order)
+  /// and returns the indices of the chosen candidates in that order.
+  std::vector<std::size_t> select_parallel(const Frame& f, const std::vector<Candidate>& cands,
+                                           const std::vector<float>& scores,
+                                           const std::vector<CostBreakdown>& costs,
+                                           const std::vector<ObjectCount>& objects,
+                                           TabletopResult& result) const {
+    const bool bf = settings_.mode == SearchMode::BruteForceIcp;
+    std::vector<std::size_t> order(cands.size());
+    std::iota(order.begin(), order.end(), std::size_t(0));
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::size_t a, std::size_t b) { return scores[a] < scores[b]; });
+    std::vector<std::vector<std::size_t>> ranked(models_.size());  // acceptable, best first
+    for (const std::size_t h : order)
+      if (acceptable(costs[h])) ranked[std::size_t(cands[h].model)].push_back(h);
+    std::vector<int> need(models_.size(), 0);
+    for (const auto& o : objects) need[std::size_t(o.model)] = o.count;
+    std::vector<std::size_t> next(models_.size(), 0);
+    std::vector<std::vector<std::size_t>> taken(models_.size());
+    std::vector<std::size_t> all_taken;
+    auto blocked = [&](std::size_t h) {
+      const auto& others = settings_.exclusive_placements ? all_taken : taken[std::size_t(cands[h].model)];
+      return std::any_of(others.begin(), others.end(),
+                         [&](std::size_t k) { return overlaps(cands[k], cands[h]); });
+    };
+    for (;;) {
+      std::ptrdiff_t best = -1;
+      float best_key = INFINITY;
+      for (const auto& o : objects) {
+        const auto m = std::size_t(o.model);
+        if (need[m] == 0) continue;
+        while (next[m] < ranked[m].size() && blocked(ranked[m][next[m]])) ++next[m];
+        if (next[m] == ranked[m].size()) continue;
+        const std::size_t h = ranked[m][next[m]];
+        const float key = bf ? scores[h] : tabletop_detail::unexplained_fraction(costs[h]);
+        if (best < 0 || key < best_key) best = std::ptrdiff_t(h), best_key = key;
+      }
+      if (best < 0) break;
+      const auto m = std::size_t(cands[std::size_t(best)].model);
+      taken[m].push_back(std::size_t(best)), all_taken.push_back(std::size_t(best));
+      --need[m], ++next[m];
+    }
+    std::vector<std::size_t> chosen;
+    for (const auto& o : objects) {
+      const auto m = std::size_t(o.model);
+      for (std::size_t k = 0; k < taken[m].size(); ++k) {
+        const std::size_t h = taken[m][k];
+        result.poses.push_back(make_pose(f, cands[h], int(k), scores[h], costs[h]));
+        chosen.push_back(h);
+      }
+      if (need[m] > 0) result.missing.push_back({o.model, need[m]});
+    }
+    return chosen;
+  }
+
   /// Parallel (and BF-ICP) search: every candidate refined and scored at once; per model the best `count`
   /// acceptable, non-overlapping ones by score.
   void search_parallel(const Frame& f, const std::vector<ObjectCount>& objects, std::vector<Candidate> cands,
@@ -591,12 +767,15 @@ class TabletopEstimator {
     const bool bf = s.mode == SearchMode::BruteForceIcp;
     const Occluders occluders{f.rgbd.depth_m, {}};
     const Occluders* occ = s.occluder_marking ? &occluders : nullptr;
-    std::vector<float> scores(cands.size(), 0.f);
-    std::vector<CostBreakdown> costs(cands.size());
+    std::vector<float> scores;
+    std::vector<CostBreakdown> costs;
     if (!cands.empty()) {
       std::vector<std::int64_t> points;
       RegistrationResult icp;
       if (s.refine || bf) icp = refine(f, cands, occ, points, result.timings);
+      result.hypotheses_refined += cands.size();
+      scores.assign(cands.size(), 0.f);
+      costs.resize(cands.size());
       if (bf) {  // truncated mean squared distance: points without a correspondence count as the cap
         const float cap2 = s.icp.max_correspondence_distance_m * s.icp.max_correspondence_distance_m;
         for (std::size_t h = 0; h < cands.size(); ++h) {
@@ -607,38 +786,25 @@ class TabletopEstimator {
           costs[h].rendered_inliers = icp.inliers[h];
         }
       } else {
-        costs = score(f, cands, render(f, cands, s.score_stride, occ, result.timings), result.timings);
+        cands = dedupe(cands, s.dedupe_xy_m, s.dedupe_yaw_rad, yaw_symmetric_);
+        if (s.coarse_score_stride > s.score_stride) cands = best_coarse(f, cands, objects, occ, result);
+        scores.assign(cands.size(), 0.f);
+        if (!cands.empty())
+          costs = score(f, cands, render(f, cands, s.score_stride, occ, result.timings), result.timings);
         for (std::size_t h = 0; h < cands.size(); ++h) scores[h] = costs[h].total;
       }
       result.hypotheses_scored += cands.size();
       keep_scored(f, cands, scores, costs, result);
     }
     const auto t = Clock::now();
-    std::vector<std::size_t> order(cands.size());
-    std::iota(order.begin(), order.end(), std::size_t(0));
-    std::stable_sort(order.begin(), order.end(),
-                     [&](std::size_t a, std::size_t b) { return scores[a] < scores[b]; });
+    const std::vector<std::size_t> chosen_index = select_parallel(f, cands, scores, costs, objects, result);
     std::vector<Candidate> chosen;
-    std::vector<std::size_t> chosen_index;
-    for (const auto& o : objects) {
-      std::vector<Candidate> mine;
-      for (const std::size_t h : order) {
-        if (int(mine.size()) == o.count) break;
-        if (cands[h].model != o.model || !acceptable(costs[h])) continue;
-        if (std::any_of(mine.begin(), mine.end(), [&](const Candidate& c) { return overlaps(c, cands[h]); }))
-          continue;
-        mine.push_back(cands[h]);
-        result.poses.push_back(make_pose(f, cands[h], int(mine.size()) - 1, scores[h], costs[h]));
-        chosen.push_back(cands[h]);
-        chosen_index.push_back(result.poses.size() - 1);
-      }
-      if (int(mine.size()) < o.count) result.missing.push_back({o.model, o.count - int(mine.size())});
-    }
+    for (const std::size_t h : chosen_index) chosen.push_back(cands[h]);
     result.timings.select += seconds_since(t);
     if (bf && !chosen.empty()) {  // report the explanation cost of the chosen poses too
       const std::vector<CostBreakdown> b =
           score(f, chosen, render(f, chosen, s.score_stride, occ, result.timings), result.timings);
-      for (std::size_t k = 0; k < chosen.size(); ++k) result.poses[chosen_index[k]].cost = b[k];
+      for (std::size_t k = 0; k < chosen.size(); ++k) result.poses[k].cost = b[k];
     }
   }
 
@@ -671,6 +837,8 @@ class TabletopEstimator {
         }
       std::vector<std::int64_t> points;
       if (s.refine) refine(f, cands, &occ, points, result.timings);
+      result.hypotheses_refined += cands.size();
+      cands = dedupe(cands, s.dedupe_xy_m, s.dedupe_yaw_rad, yaw_symmetric_);
       const CloudBatch all = render(f, cands, s.score_stride, nullptr, result.timings);
       std::vector<std::int32_t> hiding(cands.size(), 0);
       for (std::size_t h = 0; h < cands.size(); ++h)
@@ -733,6 +901,7 @@ class TabletopEstimator {
   typename Backend::Renderer renderer_;
   std::vector<Footprint> footprints_;  ///< per model, placement frame (floor: min_height_m, per call)
   std::vector<float> circumradius_;    ///< per model, of the footprint about the placement origin, metres
+  std::vector<bool> yaw_symmetric_;    ///< per model (TabletopModel::yaw_symmetric)
 };
 
 }  // namespace perch2
