@@ -19,7 +19,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <limits>
@@ -34,6 +33,7 @@
 #ifdef PERCH2_HAVE_CUDA
 #include "perch2/cuda/device.hpp"
 #endif
+#include "knn_scenes.hpp"
 #include "perch2/knn/knn.hpp"
 
 #ifdef PERCH2_HAVE_NANOFLANN
@@ -43,80 +43,6 @@
 using namespace perch2;
 
 namespace {
-
-std::vector<Vec3f> read_ascii_ply_vertices(const std::string& path) {
-  std::ifstream f(path);
-  std::string line;
-  std::size_t n = 0;
-  while (std::getline(f, line) && line.rfind("end_header", 0) != 0) {
-    std::istringstream ls(line);
-    std::string a, b;
-    ls >> a >> b;
-    if (a == "element" && b == "vertex") ls >> n;
-  }
-  std::vector<Vec3f> v;
-  for (std::size_t i = 0; i < n && std::getline(f, line); ++i) {
-    std::istringstream ls(line);
-    Vec3f p;
-    ls >> p.x >> p.y >> p.z;
-    v.push_back(0.001f * p);  // millimetres -> metres
-  }
-  return v;
-}
-
-/// Fallback model without the shared data: a 6 cm x 4 cm x 8 cm box surface.
-std::vector<Vec3f> box_model(std::mt19937& rng, int n) {
-  std::uniform_real_distribution<float> u(-1.f, 1.f);
-  std::uniform_int_distribution<int> face(0, 5);
-  const float h[3] = {0.03f, 0.02f, 0.04f};
-  std::vector<Vec3f> p;
-  for (int i = 0; i < n; ++i) {
-    float c[3] = {h[0] * u(rng), h[1] * u(rng), h[2] * u(rng)};
-    const int f = face(rng);
-    c[f / 2] = f % 2 ? h[f / 2] : -h[f / 2];
-    p.push_back({c[0], c[1], c[2]});
-  }
-  return p;
-}
-
-Rigid3f rotation(Vec3f axis, float angle, Vec3f t) {
-  const float n = std::sqrt(squared_norm(axis));
-  const Vec3f a = (1.f / n) * axis;
-  const float c = std::cos(angle), s = std::sin(angle), C = 1 - c;
-  return {{{c + a.x * a.x * C, a.x * a.y * C - a.z * s, a.x * a.z * C + a.y * s, a.y * a.x * C + a.z * s,
-            c + a.y * a.y * C, a.y * a.z * C - a.x * s, a.z * a.x * C - a.y * s, a.z * a.y * C + a.x * s,
-            c + a.z * a.z * C}},
-          t};
-}
-
-void append(CloudBatch& b, const std::vector<Vec3f>& pts) {
-  for (const Vec3f& p : pts) {
-    b.x.push_back(p.x), b.y.push_back(p.y), b.z.push_back(p.z);
-    b.rgb.push_back(0), b.pixel.push_back(-1), b.cloud.push_back(std::int32_t(b.num_clouds()));
-  }
-  b.offsets.push_back(std::int64_t(b.x.size()));
-}
-
-std::vector<Vec3f> sample(std::mt19937& rng, const std::vector<Vec3f>& pts, std::size_t n) {
-  std::uniform_int_distribution<std::size_t> pick(0, pts.size() - 1);
-  std::vector<Vec3f> out(n);
-  for (auto& p : out) p = pts[pick(rng)];
-  return out;
-}
-
-std::vector<Vec3f> transformed(const std::vector<Vec3f>& pts, const Rigid3f& T, std::mt19937& rng,
-                               float noise_m) {
-  std::normal_distribution<float> g(0.f, noise_m);
-  std::vector<Vec3f> out;
-  for (const Vec3f& p : pts) out.push_back(T * p + Vec3f{g(rng), g(rng), g(rng)});
-  return out;
-}
-
-struct Scene {
-  std::string name;
-  CloudBatch targets, queries;
-  std::vector<std::int32_t> segment;
-};
 
 CloudBatch first_clouds(const CloudBatch& b, std::size_t n) {
   CloudBatch out;
@@ -233,80 +159,22 @@ class NanoflannIndex {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const std::string data_dir =
-      argc > 1 ? argv[1] : (std::filesystem::path(__FILE__).parent_path() / "../../shared/data").string();
+  // PERCH2_SHARED_DATA_DIR (bench/CMakeLists.txt): __FILE__ may be relative (ccache's base dir).
+  const std::string data_dir = argc > 1 ? argv[1] : PERCH2_SHARED_DATA_DIR;
   const int runs = argc > 2 ? std::max(1, std::atoi(argv[2])) : 5;
   const bool grid_only = argc > 3 && std::string(argv[3]) == "grid";  // skip the slow scanning methods
-  std::mt19937 rng(42);
-  std::vector<Vec3f> model = read_ascii_ply_vertices(data_dir + "/models/linemod_obj_06/obj_06.ply");
-  const bool real = !model.empty();
-  if (!real) model = box_model(rng, 15000);
-  // Centre the model at its bounding-box centre.
-  Vec3f lo = model[0], hi = model[0];
-  for (const Vec3f& p : model)
-    lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)},
-    hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
-  const Vec3f centre = 0.5f * (lo + hi);
-  for (Vec3f& p : model) p = p - centre;
+  const bench::KnnScenes problems = bench::knn_scenes(data_dir);
   std::printf("model: %s, %zu vertices; OpenMP threads: %d; runs: %d (medians)\n",
-              real ? "LINEMOD obj_06 (cat)" : "synthetic box (no shared data)", model.size(),
-              omp_get_max_threads(), runs);
+              problems.model_name.c_str(), problems.model_vertices, omp_get_max_threads(), runs);
 #ifdef PERCH2_HAVE_NANOFLANN
   std::printf("peer: nanoflann, NANOFLANN_VERSION 0x%x (KDTreeSingleIndexAdaptor, leaf size 10)\n",
               unsigned(NANOFLANN_VERSION));
 #else
   std::printf("peer: nanoflann not built in (libnanoflann-dev not found at configure time)\n");
 #endif
+  const std::vector<bench::Scene>& scenes = problems.scenes;
 
-  std::vector<Scene> scenes;
-  std::uniform_real_distribution<float> u(-1.f, 1.f);
-  const Rigid3f T_cam_obj = rotation({1, 0.3f, 0.1f}, 2.2f, {0.02f, -0.05f, 0.75f});
-  {  // 6-DoF: one object segment of 5,000 points, hypotheses perturbed around the true pose.
-    Scene s;
-    s.name = "6dof: 2400 x 300 queries -> 1 segment of 5000";
-    append(s.targets, transformed(sample(rng, model, 5000), T_cam_obj, rng, 0.001f));
-    for (int h = 0; h < 2400; ++h) {
-      const Vec3f axis{u(rng), u(rng), u(rng)};  // drawn in sequence: argument order is unspecified
-      const float angle = 0.26f * u(rng);
-      const Rigid3f dT = rotation(axis, angle, {0.03f * u(rng), 0.03f * u(rng), 0.03f * u(rng)});
-      Rigid3f T = T_cam_obj;
-      std::vector<Vec3f> pts = transformed(sample(rng, model, 300), T, rng, 0.f);
-      for (Vec3f& p : pts) p = dT * (p - T_cam_obj.t) + T_cam_obj.t;
-      append(s.queries, pts);
-      s.segment.push_back(0);
-    }
-    scenes.push_back(std::move(s));
-  }
-  {  // 3-DoF: table plane (1 m x 0.8 m, ~17,000 points) + the object (3,000), hypotheses on a table grid.
-    Scene s;
-    s.name = "3dof: 2400 x 300 queries -> 1 scene of 20000";
-    const Rigid3f T_cam_table = rotation({1, 0, 0}, -2.2f, {0.f, 0.1f, 0.9f});  // table z up, seen from above
-    std::vector<Vec3f> scene;
-    std::uniform_real_distribution<float> tx(-0.5f, 0.5f), ty(-0.4f, 0.4f);
-    for (int i = 0; i < 17000; ++i) scene.push_back(T_cam_table * Vec3f{tx(rng), ty(rng), 0.f});
-    const float half_h = 0.5f * (hi.z - lo.z);
-    const Rigid3f T_table_obj = rotation({0, 0, 1}, 0.7f, {0.1f, -0.05f, half_h});
-    for (const Vec3f& p : sample(rng, model, 3000)) scene.push_back(T_cam_table * (T_table_obj * p));
-    append(s.targets, transformed(scene, rotation({0, 0, 1}, 0.f, {0, 0, 0}), rng, 0.001f));
-    // 3-DoF grid: x, y every 8 cm over the table (13 x 10), yaw in 22.5 deg steps (16) -> 2,080; pad to
-    // 2,400.
-    std::vector<Rigid3f> hyps;
-    for (int i = 0; i < 13; ++i)
-      for (int j = 0; j < 10; ++j)
-        for (int y = 0; y < 16; ++y)
-          hyps.push_back(rotation({0, 0, 1}, 0.3927f * float(y),
-                                  {-0.48f + 0.08f * float(i), -0.36f + 0.08f * float(j), half_h}));
-    while (hyps.size() < 2400) hyps.push_back(hyps[hyps.size() % 2080]);
-    for (const Rigid3f& T : hyps) {
-      std::vector<Vec3f> pts = sample(rng, model, 300);
-      for (Vec3f& p : pts) p = T_cam_table * (T * p);
-      append(s.queries, pts);
-      s.segment.push_back(0);
-    }
-    scenes.push_back(std::move(s));
-  }
-
-  for (const Scene& s : scenes) {
+  for (const bench::Scene& s : scenes) {
     std::printf("\n## %s (%zu query points)\n\n", s.name.c_str(), s.queries.size());
     std::unique_ptr<cpu::KnnIndex> flann;
     std::unique_ptr<thrust_backend::KnnIndex<thrust_backend::OmpSystem>> thr;

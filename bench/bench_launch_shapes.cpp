@@ -8,7 +8,12 @@
 //   (the CUDA build runs the same source; it adds only CUB's scan/count temporaries, cached per stage
 //   object).
 //
-//   bench_launch_shapes [--poses 2000] [--sources 2400]
+// kNN rows (KnnIndex build, knn(), radius()) use bench_knn's problems (knn_scenes.hpp). Every kNN pass has
+// one query, target point or grid cell per work item on every System (no System constant applies), so
+// the cuda plan repeats the measured passes; on CUDA the cold call also allocates its pinned staging
+// buffer and CUB's scan temporaries, both kept by the index (warm calls: 0 allocations).
+//
+//   bench_launch_shapes [--poses 2000] [--sources 2400] [--data <repo>/../shared/data]
 #include <omp.h>
 
 #include <algorithm>
@@ -18,6 +23,7 @@
 #include <vector>
 
 #include "bench_support.hpp"
+#include "knn_scenes.hpp"
 #include "perch2/cuda/backend.hpp"
 #include "perch2/cuda/launch_plan.hpp"
 #include "perch2/render/mesh_arrays.hpp"
@@ -164,14 +170,86 @@ void registration_shapes(int num_sources) {
       most, s.max_iterations, (long long)cold, (long long)omp.device_allocations);
 }
 
+/// The kNN stage's launches for a System: one query, point or cell per work item on every System, so the
+/// plan is the measured pass list (see the file comment).
+template <class System>
+LaunchShape planned_knn(const LaunchShape& measured) {
+  LaunchShape shape;
+  for (const auto& p : measured.passes)
+    for (std::int64_t l = 0; l < p.launches; ++l) shape.launch(p.name, p.elements_per_item, p.max_items);
+  return shape;
+}
+
+void print_knn(const std::string& problem, const LaunchShape& omp) {
+  for (const auto& p : omp.passes) print_pass("thrust_omp", problem, p);
+  for (const auto& p : planned_knn<CudaSystem>(omp).passes) print_pass("cuda (plan)", problem, p);
+}
+
+void knn_shapes(const std::string& data_dir) {
+  const bench::KnnScenes problems = bench::knn_scenes(data_dir);
+  const float radius_m = 0.0075f;  // the 3-DoF cost's delta (paper default)
+  std::printf(
+      "\nkNN: bench_knn's problems (%s model), Auto method (grid at these sizes), radius %.4f m "
+      "without a cap\n\n",
+      problems.model_name.c_str(), double(radius_m));
+  print_header();
+  std::vector<std::string> memory;
+  auto row = [&](const std::string& problem, long long cold, const std::string& warm, std::size_t bytes,
+                 const std::string& found = "") {
+    char line[256];
+    std::snprintf(line, sizeof line, "| %-26s | %11lld | %11s | %8.1f | %-26s |", problem.c_str(), cold,
+                  warm.c_str(), double(bytes) / (1 << 20), found.c_str());
+    memory.push_back(line);
+  };
+  for (const bench::Scene& sc : problems.scenes) {
+    const std::string tag = sc.name.substr(0, 4);  // 6dof / 3dof
+    const thrust_omp::Backend::KnnIndex index(sc.targets);
+    const LaunchShape build = index.last_launch_shape();
+    print_knn(tag + " build", build);
+    row(tag + " build", (long long)build.device_allocations, "(new index)", build.workspace_bytes);
+    for (int k : {1, 10}) {
+      KnnSettings s;
+      s.k = k;
+      const std::string problem = tag + " knn k=" + std::to_string(k);
+      index.knn(sc.queries, sc.segment, s);
+      const std::int64_t cold = index.last_launch_shape().device_allocations;
+      index.knn(sc.queries, sc.segment, s);
+      const LaunchShape warm = index.last_launch_shape();
+      print_knn(problem, warm);
+      row(problem, (long long)cold, std::to_string(warm.device_allocations), warm.workspace_bytes);
+    }
+    const std::string problem = tag + " radius";
+    const RadiusResult r = index.radius(sc.queries, sc.segment, radius_m);
+    const std::int64_t cold = index.last_launch_shape().device_allocations;
+    index.radius(sc.queries, sc.segment, radius_m);
+    const LaunchShape warm = index.last_launch_shape();
+    print_knn(problem, warm);
+    std::int64_t most = 0;
+    for (std::size_t q = 0; q < r.num_queries(); ++q) most = std::max(most, r.offsets[q + 1] - r.offsets[q]);
+    row(problem, (long long)cold, std::to_string(warm.device_allocations), warm.workspace_bytes,
+        std::to_string(r.index.size()) + " (<= " + std::to_string(most) + " per query)");
+  }
+  std::printf(
+      "\nDevice allocations per call (thrust_omp measured; cold: the first call of that size on the index, "
+      "so k = 10 after k = 1 only grows the result lists; build: the index's arrays and temporaries) and the "
+      "device memory the index keeps (build: the index; calls: the reusable workspace):\n\n");
+  std::printf(
+      "| problem                    | allocs cold | allocs warm | kept MiB | radius results             |\n");
+  std::printf(
+      "|----------------------------|-------------|-------------|----------|----------------------------|\n");
+  for (const auto& l : memory) std::printf("%s\n", l.c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   int num_poses = 2000, num_sources = 2400;
+  std::string data_dir = PERCH2_SHARED_DATA_DIR;  // set by bench/CMakeLists.txt
   for (int k = 1; k + 1 < argc; k += 2) {
     const std::string a = argv[k];
     if (a == "--poses") num_poses = std::stoi(argv[k + 1]);
     if (a == "--sources") num_sources = std::stoi(argv[k + 1]);
+    if (a == "--data") data_dir = argv[k + 1];
   }
   std::printf("bench_launch_shapes on %s, %d threads (counts, not timings)\n", bench::cpu_model().c_str(),
               omp_get_max_threads());
@@ -180,5 +258,6 @@ int main(int argc, char** argv) {
       "launch of the pass, i.e. the threads a GPU would run at once\n");
   render_shapes(num_poses);
   registration_shapes(num_sources);
+  knn_shapes(data_dir);
   return 0;
 }

@@ -19,6 +19,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "perch2/cuda/launch_plan.hpp"
 #include "perch2/knn/grid.hpp"
 #include "perch2/knn/knn.hpp"
 #include "test_support.hpp"
@@ -369,10 +370,11 @@ TEST_CASE_TEMPLATE("kNN terminates with knn_ball_cells = 0 when queries are cell
   }
 }
 
-TEST_CASE("thrust_omp KnnIndex over 400,000 coincident points builds in O(m log m)") {
+TEST_CASE("thrust_omp KnnIndex over 400,000 coincident points builds without quadratic work") {
   // All points fall in one grid cell, placed in the order of the threads' atomic increments. Ordering the
-  // cell by insertion sort is O(m^2) in one thread: ~13 s here for 200,000 points on 2 threads, ~4x that
-  // for 400,000 (less with one thread, whose placement is already ordered); the heap sort takes ~0.5 s.
+  // cell by insertion sort was O(m^2) in one thread: ~13 s here for 200,000 points on 2 threads, ~4x that
+  // for 400,000; a heap sort took ~0.5 s; the segmented sort (runs of 16, then 15 merge passes spread over
+  // all threads) 0.4 s of CPU (2.4 s wall on a loaded machine).
   auto targets =
       std::make_shared<CloudBatch>(make_batch({std::vector<Vec3f>(400000, Vec3f{0.1f, 0.2f, 0.9f})}));
   auto result = std::make_shared<KnnResult>();
@@ -707,4 +709,132 @@ TEST_CASE("thrust_omp KnnIndex::view() searches the index from device-callable c
   }
   check_equal(grid, ref, true, "grid_knn on view()");
   check_equal(scan, ref, true, "knn_scan on view()");
+}
+
+TEST_CASE("thrust_omp KnnIndex reuses its workspace: warm knn() and radius() calls allocate nothing") {
+  // Every per-call array (queries, per-point segments, result lists, kNN I tiles, radius offsets and
+  // sort buffers, scan temporaries) lives in the index's workspace and only grows: the second identical
+  // call makes no device allocation, and a smaller call none either. Results are unchanged by reuse.
+  std::mt19937 rng(61);
+  const auto sphere = sphere_surface(rng, 3000, {0, 0, 0.8f}, 0.05f);
+  const CloudBatch targets = make_batch({sphere, random_box(rng, 500, {-0.05f, -0.05f, 0.7f}, {0, 0, 0.8f})});
+  std::vector<std::vector<Vec3f>> qc;
+  for (int c = 0; c < 20; ++c) qc.push_back(perturbed(rng, sphere, 50, 0.01f, 0.001f));
+  const CloudBatch queries = make_batch(qc);
+  const std::vector<std::int32_t> seg(qc.size(), 0);
+  const CloudBatch fewer = make_batch({qc[0], qc[1]});
+  const perch2::thrust_omp::Backend::KnnIndex index(targets);
+  const perch2::thrust_backend::LaunchShape build = index.last_launch_shape();
+  CHECK(build.device_allocations > 0);
+  REQUIRE(build.find("place_in_cells") != nullptr);
+  CHECK(build.find("place_in_cells")->items == std::int64_t(targets.size()));
+  CHECK(build.find("cell_sort_runs") != nullptr);  // cells of more than one point are ordered by index
+  {  // ... so the layout does not depend on the order of the build's atomic increments
+    const perch2::GridView g = index.view().grid;
+    const perch2::GridSegment& last = g.segments[g.num_segments - 1];
+    const std::int64_t cells = last.cell_base + std::int64_t(last.nx) * last.ny * last.nz;
+    std::int64_t unordered = 0, largest = 0;
+    for (std::int64_t c = 0; c < cells; ++c) {
+      largest = std::max<std::int64_t>(largest, g.cell_start[c + 1] - g.cell_start[c]);
+      for (std::int32_t i = g.cell_start[c] + 1; i < g.cell_start[c + 1]; ++i)
+        unordered += g.point_index[i - 1] > g.point_index[i];
+    }
+    CHECK(unordered == 0);
+    CHECK(largest > perch2::thrust_backend::segmented_sort_run);  // the merge passes ran
+    CHECK(build.find("cell_sort_merge") != nullptr);
+  }
+  for (KnnMethod m : kMethods) {
+    INFO(perch2::to_string(m));
+    KnnSettings s;
+    s.k = 8;
+    s.method = m;
+    s.memory_budget_bytes = 1 << 20;  // kNN I: several tiles (1,000 queries x 3,000 targets)
+    const KnnResult cold = index.knn(queries, seg, s);
+    // The first call builds the workspace; kNN I adds its tile.
+    if (m == KnnMethod::Auto || m == KnnMethod::BruteForce)
+      CHECK(index.last_launch_shape().device_allocations > 0);
+    const KnnResult warm = index.knn(queries, seg, s);
+    const perch2::thrust_backend::LaunchShape shape = index.last_launch_shape();
+    CHECK(shape.device_allocations == 0);
+    CHECK(warm.index == cold.index);
+    CHECK(warm.sq_distance_m2 == cold.sq_distance_m2);
+    REQUIRE(shape.find("query_segment") != nullptr);
+    CHECK(shape.find("query_segment")->items == std::int64_t(queries.size()));
+    if (m == KnnMethod::Grid) CHECK(shape.find("grid_knn")->items == std::int64_t(queries.size()));
+    if (m == KnnMethod::BruteForce) CHECK(shape.find("tile_select")->launches > 1);
+    index.knn(fewer, {0, 0}, s);
+    CHECK(index.last_launch_shape().device_allocations == 0);
+  }
+  for (int cap : {0, 6}) {
+    INFO("cap " << cap);
+    const RadiusResult cold = index.radius(queries, seg, 0.01f, cap);
+    CHECK(index.last_launch_shape().device_allocations > 0);  // offsets (and lists or sort buffers)
+    const RadiusResult warm = index.radius(queries, seg, 0.01f, cap);
+    CHECK(index.last_launch_shape().device_allocations == 0);
+    CHECK(warm.offsets == cold.offsets);
+    CHECK(warm.index == cold.index);
+    CHECK(warm.sq_distance_m2 == cold.sq_distance_m2);
+    index.radius(fewer, {0, 0}, 0.01f, cap);
+    CHECK(index.last_launch_shape().device_allocations == 0);
+  }
+}
+
+TEST_CASE_TEMPLATE("kNN and radius search over 20,000 coincident points finish and sort in bounded passes",
+                   Backend, PERCH2_TEST_BACKENDS) {
+  // Worst case for per-item serial work: every target point in one grid cell and within every query's
+  // radius. The Thrust backend orders the cell by index and each query's 20,000 radius results by
+  // (distance, index) with a segmented sort (runs of 16, then merge passes: one binary search per element),
+  // never one thread sorting a whole segment; the guard catches a hang.
+  auto targets =
+      std::make_shared<CloudBatch>(make_batch({std::vector<Vec3f>(20000, Vec3f{0.1f, 0.2f, 0.9f})}));
+  std::vector<Vec3f> q(40, Vec3f{0.1f, 0.2f, 0.9f});
+  q[1] = {0.1f, 0.2f, 0.91f};  // 1 cm away: every point at the same distance, still index order
+  auto queries = std::make_shared<CloudBatch>(make_batch({q}));
+  auto knn = std::make_shared<KnnResult>();
+  auto radius = std::make_shared<RadiusResult>();
+  auto shape = std::make_shared<perch2::thrust_backend::LaunchShape>();
+  const bool finished = finishes_within(60.0, [targets, queries, knn, radius, shape] {
+    const typename Backend::KnnIndex index(*targets);
+    KnnSettings s;
+    s.k = 10;
+    s.method = KnnMethod::Grid;
+    *knn = index.knn(*queries, {0}, s);
+    *radius = index.radius(*queries, {0}, 0.02f);
+    if constexpr (!std::is_same_v<Backend, perch2::cpu::Backend>) *shape = index.last_launch_shape();
+  });
+  REQUIRE_MESSAGE(finished, "searching 20,000 coincident points took over 60 s");
+  std::vector<std::int32_t> first10(10);
+  for (int j = 0; j < 10; ++j) first10[std::size_t(j)] = j;
+  for (std::size_t i = 0; i < q.size(); ++i) {
+    std::vector<std::int32_t> got(knn->index.begin() + std::ptrdiff_t(i * 10),
+                                  knn->index.begin() + std::ptrdiff_t(i * 10 + 10));
+    // Exact ties break by the smaller index (FLANN returns some 10 distinct points of the tie).
+    if (breaks_ties_by_index<Backend>()) {
+      CHECK(got == first10);
+    } else {
+      std::sort(got.begin(), got.end());
+      CHECK(std::unique(got.begin(), got.end()) == got.end());
+      CHECK(got.front() >= 0);
+      CHECK(got.back() < 20000);
+    }
+    CHECK(knn->sq_distance_m2[i * 10 + 9] == knn->sq_distance_m2[i * 10]);  // all tied
+  }
+  REQUIRE(radius->offsets.size() == q.size() + 1);
+  std::size_t unsorted = 0;
+  for (std::size_t i = 0; i < q.size(); ++i) {
+    REQUIRE(radius->offsets[i + 1] - radius->offsets[i] == 20000);
+    for (std::int64_t j = 0; j < 20000; ++j)
+      unsorted += radius->index[std::size_t(radius->offsets[i] + j)] != std::int32_t(j);
+  }
+  CHECK(unsorted == 0);
+  if constexpr (!std::is_same_v<Backend, perch2::cpu::Backend>) {
+    // 20,000 = 16 x 1,250 <= 16 x 2^11: runs of 16 then 11 merge passes, each one item per result.
+    const auto* runs = shape->find("radius_sort_runs");
+    const auto* merge = shape->find("radius_sort_merge");
+    REQUIRE(runs != nullptr);
+    REQUIRE(merge != nullptr);
+    CHECK(runs->items == 40 * 20000);
+    CHECK(merge->launches == 11);
+    CHECK(merge->max_items == 40 * 20000);
+  }
 }

@@ -15,24 +15,19 @@
 
 #include <algorithm>
 #include <limits>
+#include <mutex>
+#include <string>
 
 #include "perch2/core/segments.hpp"
 #include "perch2/cuda/knn.hpp"
 #include "perch2/knn/grid.hpp"
 #include "perch2/knn/scan.hpp"
+#include "segmented_sort.hpp"
+#include "thrust_util.hpp"
 
 namespace perch2::thrust_backend {
 
 namespace knn_detail {
-
-template <class T>
-T* raw(thrust::device_vector<T>& v) {
-  return thrust::raw_pointer_cast(v.data());
-}
-template <class T>
-const T* raw(const thrust::device_vector<T>& v) {
-  return thrust::raw_pointer_cast(v.data());
-}
 
 inline std::vector<Vec3f> to_aos(const CloudBatch& b) {
   std::vector<Vec3f> p(b.size());
@@ -77,36 +72,18 @@ struct PlaceInCells {
   }
 };
 
-/// Pass 3: order each cell's points by index, so the layout does not depend on the order of the atomic
-/// increments. Cells hold ~points_per_cell points (insertion sort); a large cell (coincident points, a
-/// dense cluster) is heap sorted: O(m log m) instead of O(m^2) in its one thread.
-struct OrderCell {
-  const std::int32_t* cell_start;
-  Vec3f* points;
-  std::int32_t* index;
-  PERCH2_HD void operator()(std::int64_t c) const {
-    const std::int64_t b = cell_start[c], m = cell_start[c + 1] - b;
-    Vec3f* p = points + b;
-    std::int32_t* v = index + b;
-    if (m > 32) {
-      heap_sort(
-          m, [v](std::int64_t x, std::int64_t y) { return v[x] < v[y]; },
-          [p, v](std::int64_t x, std::int64_t y) {
-            const Vec3f tp = p[x];
-            p[x] = p[y], p[y] = tp;
-            const std::int32_t tv = v[x];
-            v[x] = v[y], v[y] = tv;
-          });
-      return;
-    }
-    for (std::int64_t i = 1; i < m; ++i) {
-      const Vec3f pi = p[i];
-      const std::int32_t vi = v[i];
-      std::int64_t j = i;
-      for (; j > 0 && v[j - 1] > vi; --j) p[j] = p[j - 1], v[j] = v[j - 1];
-      p[j] = pi;
-      v[j] = vi;
-    }
+/// Pass 3 (segmented_sort over cells): order each cell's points by index, so the layout does not depend on
+/// the order of the atomic increments.
+struct IndexLess {
+  PERCH2_HD bool operator()(std::int32_t ia, const Vec3f&, std::int32_t ib, const Vec3f&) const {
+    return ia < ib;
+  }
+};
+
+/// Radius results of one query, ordered by (distance, index) (segmented_sort over queries).
+struct PairLess {
+  PERCH2_HD bool operator()(float da, std::int32_t ia, float db, std::int32_t ib) const {
+    return knn_less(da, ia, db, ib);
   }
 };
 
@@ -220,7 +197,7 @@ struct TileSelect {
   }
 };
 
-/// Radius search visitors: count, then write.
+/// Radius search visitors: count, then write (in visiting order; a segmented sort orders them after).
 struct CountVisit {
   std::int64_t n = 0;
   PERCH2_HD void operator()(std::int32_t, float) { ++n; }
@@ -274,7 +251,6 @@ struct RadiusFill {
       grid_radius_visit(grid, s, queries[i], radius_m, v);
     else
       radius_scan(points, segment_offsets[s], segment_offsets[s + 1], queries[i], radius_m * radius_m, v);
-    knn_sort_pairs(d2 + o, idx + o, v.n);
   }
 };
 
@@ -317,65 +293,121 @@ struct KnnIndex<System>::Impl {
   thrust::device_vector<std::int32_t> grid_index;
   thrust::device_vector<std::int32_t> cell_rep;  // per cell: a point near its centre
 
+  /// Per-call arrays of knn() and radius(), reused across calls (they grow only; calls hold the mutex).
+  struct Workspace {
+    std::vector<Vec3f> host_queries;
+    thrust::device_vector<Vec3f> queries;
+    thrust::device_vector<std::int64_t> query_offsets, offsets, scalar;
+    thrust::device_vector<std::int32_t> segment_of_cloud, cloud, query_segment, idx, list_idx, sort_idx;
+    thrust::device_vector<float> d2, list_d2, sort_d2, tile;
+    TempAllocator temp;
+    HostBuffer<System, unsigned char> staging;  // device -> host copies (pinned on CUDA)
+    std::size_t bytes() const {
+      return queries.capacity() * sizeof(Vec3f) +
+             (query_offsets.capacity() + offsets.capacity() + scalar.capacity()) * 8 +
+             (segment_of_cloud.capacity() + cloud.capacity() + query_segment.capacity() + idx.capacity() +
+              list_idx.capacity() + sort_idx.capacity() + d2.capacity() + list_d2.capacity() +
+              sort_d2.capacity() + tile.capacity()) *
+                 4 +
+             temp.bytes();
+    }
+  };
+  mutable std::mutex mutex;
+  mutable Workspace ws;
+  mutable LaunchShape shape;  // the last call's (after construction: the build's)
+
   GridView grid_view() const {
-    return {knn_detail::raw(grid_segments), int(grid_segments.size()),   knn_detail::raw(cell_start),
-            knn_detail::raw(grid_points),   knn_detail::raw(grid_index), knn_detail::raw(cell_rep)};
+    return {ptr(grid_segments), int(grid_segments.size()), ptr(cell_start),
+            ptr(grid_points),   ptr(grid_index),           ptr(cell_rep)};
   }
 
-  /// Uploads query points and, per point, the segment its cloud searches.
+  std::size_t index_bytes() const {
+    return (points.capacity() + grid_points.capacity()) * sizeof(Vec3f) + segment_offsets.capacity() * 8 +
+           grid_segments.capacity() * sizeof(GridSegment) +
+           (cell_start.capacity() + grid_index.capacity() + cell_rep.capacity()) * 4;
+  }
+
+  /// Starts a call: clears the launch shape and the allocation counters.
+  std::int64_t& begin_call() const {
+    shape = LaunchShape{};
+    ws.temp.allocations = 0;
+    return shape.device_allocations;
+  }
+  void end_call() const {
+    shape.device_allocations += ws.temp.allocations;
+    shape.workspace_bytes = ws.bytes();
+  }
+
+  /// Uploads query points and, per point, the segment its cloud searches, into the workspace.
   void upload_queries(const CloudBatch& queries, const std::vector<std::int32_t>& query_segment,
-                      thrust::device_vector<Vec3f>& q, thrust::device_vector<std::int32_t>& qseg) const {
+                      std::int64_t& allocs) const {
     using namespace knn_detail;
-    const std::vector<Vec3f> host = to_aos(queries);
-    q.assign(host.begin(), host.end());
-    const thrust::device_vector<std::int64_t> offsets(queries.offsets.begin(), queries.offsets.end());
-    const thrust::device_vector<std::int32_t> seg_of_cloud(query_segment.begin(), query_segment.end());
-    thrust::device_vector<std::int32_t> cloud(q.size());
-    thrust::upper_bound(thrust::device, raw(offsets) + 1, raw(offsets) + offsets.size(),
+    Workspace& w = ws;
+    w.host_queries.resize(queries.size());
+    for (std::size_t i = 0; i < queries.size(); ++i) w.host_queries[i] = queries.point(i);
+    upload(w.queries, w.host_queries, allocs);
+    const std::int64_t* offsets = upload(w.query_offsets, queries.offsets, allocs);
+    const std::int32_t* seg_of_cloud = upload(w.segment_of_cloud, query_segment, allocs);
+    const std::int64_t nq = std::int64_t(queries.size());
+    std::int32_t* cloud = reuse(w.cloud, std::size_t(nq), allocs);
+    thrust::upper_bound(thrust::device(w.temp), offsets + 1, offsets + queries.offsets.size(),
                         thrust::counting_iterator<std::int64_t>(0),
-                        thrust::counting_iterator<std::int64_t>(std::int64_t(q.size())), raw(cloud));
-    qseg.resize(q.size());
-    thrust::transform(thrust::device, raw(cloud), raw(cloud) + cloud.size(), raw(qseg),
-                      QuerySegment{raw(seg_of_cloud)});
+                        thrust::counting_iterator<std::int64_t>(nq), cloud);
+    thrust::transform(thrust::device, cloud, cloud + nq, reuse(w.query_segment, std::size_t(nq), allocs),
+                      QuerySegment{seg_of_cloud});
+    shape.launch("query_segment", 1, nq);
   }
 
-  /// Searches uploaded queries (q, per-point segment qseg) into idx/d2 (nq * k each, preallocated).
-  /// max_seg: largest searched segment (kNN I tile width).
-  void run_knn(const thrust::device_vector<Vec3f>& q, const thrust::device_vector<std::int32_t>& qseg, int k,
-               float max_distance_m, KnnMethod method, std::size_t memory_budget_bytes, std::int64_t max_seg,
-               thrust::device_vector<std::int32_t>& idx, thrust::device_vector<float>& d2) const {
+  /// Searches the uploaded queries into idx/d2 (nq * k each, preallocated). max_seg: largest searched
+  /// segment (kNN I tile width).
+  void run_knn(int k, float max_distance_m, KnnMethod method, std::size_t memory_budget_bytes,
+               std::int64_t max_seg, std::int32_t* idx, float* d2, std::int64_t& allocs) const {
     using namespace knn_detail;
-    const std::int64_t nq = std::int64_t(q.size());
+    Workspace& w = ws;
+    const Vec3f* q = ptr(w.queries);
+    const std::int32_t* qseg = ptr(w.query_segment);
+    const std::int64_t nq = std::int64_t(w.query_segment.size());
     const float max_d2 = max_distance_m * max_distance_m;
     const thrust::counting_iterator<std::int64_t> first(0);
 
     if (method == KnnMethod::Grid) {
       thrust::for_each(thrust::device, first, first + nq,
-                       GridKnn{grid_view(), raw(q), raw(qseg), k, max_distance_m, raw(idx), raw(d2)});
+                       GridKnn{grid_view(), q, qseg, k, max_distance_m, idx, d2});
+      shape.launch("grid_knn", 1, nq);
     } else if (method == KnnMethod::PerQuery) {
-      thrust::for_each(
-          thrust::device, first, first + nq,
-          PerQueryKnn{raw(points), raw(segment_offsets), raw(q), raw(qseg), k, max_d2, raw(idx), raw(d2)});
+      thrust::for_each(thrust::device, first, first + nq,
+                       PerQueryKnn{ptr(points), ptr(segment_offsets), q, qseg, k, max_d2, idx, d2});
+      shape.launch("per_query_knn", 1, nq);
     } else {  // kNN I: tiles of (query rows x target columns) under the memory budget
-      thrust::for_each(thrust::device, first, first + nq, ClearLists{k, raw(idx), raw(d2)});
+      thrust::for_each(thrust::device, first, first + nq, ClearLists{k, idx, d2});
+      shape.launch("clear_lists", 1, nq);
       if (max_seg > 0) {
-        const std::int64_t budget = std::int64_t(memory_budget_bytes / sizeof(float));
-        const std::int64_t width = std::min(max_seg, budget);
-        const std::int64_t rows = std::min(nq, std::max<std::int64_t>(1, budget / width));
-        thrust::device_vector<float> tile(static_cast<std::size_t>(rows * width));
-        for (std::int64_t row0 = 0; row0 < nq; row0 += rows) {
-          const std::int64_t nr = std::min(rows, nq - row0);
-          for (std::int64_t col0 = 0; col0 < max_seg; col0 += width) {
-            thrust::for_each(thrust::device, first, first + nr * width,
-                             TileDistances{raw(points), raw(segment_offsets), raw(q), raw(qseg), row0, col0,
-                                           width, raw(tile)});
-            thrust::for_each(thrust::device, first, first + nr,
-                             TileSelect{raw(segment_offsets), raw(qseg), raw(tile), row0, col0, width, k,
-                                        max_d2, raw(idx), raw(d2)});
+        const KnnTiles t = plan_knn_tiles(nq, max_seg, memory_budget_bytes);
+        float* tile = reuse(w.tile, std::size_t(t.rows * t.width), allocs);
+        for (std::int64_t row0 = 0; row0 < nq; row0 += t.rows) {
+          const std::int64_t nr = std::min(t.rows, nq - row0);
+          for (std::int64_t col0 = 0; col0 < max_seg; col0 += t.width) {
+            thrust::for_each(
+                thrust::device, first, first + nr * t.width,
+                TileDistances{ptr(points), ptr(segment_offsets), q, qseg, row0, col0, t.width, tile});
+            thrust::for_each(
+                thrust::device, first, first + nr,
+                TileSelect{ptr(segment_offsets), qseg, tile, row0, col0, t.width, k, max_d2, idx, d2});
+            shape.launch("tile_distances", 1, nr * t.width);
+            shape.launch("tile_select", 1, nr);
           }
         }
       }
     }
+  }
+
+  /// Inclusive scan of the per-query counts in offsets[1..nq] and the offsets to the host.
+  void scan_offsets(std::int64_t nq, std::vector<std::int64_t>& host, std::int64_t& allocs) const {
+    std::int64_t* offsets = ptr(ws.offsets);
+    thrust::inclusive_scan(thrust::device(ws.temp), offsets + 1, offsets + nq + 1, offsets + 1);
+    shape.launch("offsets_scan", 1, nq);
+    download<System>(static_cast<const std::int64_t*>(offsets), std::size_t(nq) + 1, host, ws.staging,
+                     allocs);
   }
 };
 
@@ -386,57 +418,70 @@ KnnIndex<System>::KnnIndex(CloudBatch targets, const KnnIndexSettings& settings)
   validate_knn_cloud(targets, "kNN targets");
   validate_knn_index_settings(settings);
   Impl& m = *impl_;
+  std::int64_t& allocs = m.begin_call();
   m.segment_offsets_host = targets.offsets;
   m.num_points = targets.size();
-  const std::vector<Vec3f> host = to_aos(targets);
-  m.points.assign(host.begin(), host.end());
-  m.segment_offsets.assign(targets.offsets.begin(), targets.offsets.end());
+  upload(m.points, to_aos(targets), allocs);
+  upload(m.segment_offsets, targets.offsets, allocs);
 
   // Grid: geometry planned on the host (bounding boxes, cell size), keys and order on the device.
   std::vector<GridSegment> segs;
   const std::int64_t total_cells = plan_grid(targets, settings.grid, segs);
-  m.grid_segments.assign(segs.begin(), segs.end());
+  upload(m.grid_segments, segs, allocs);
   const std::int64_t n = std::int64_t(m.num_points);
-  thrust::device_vector<std::int32_t> seg_of_point(static_cast<std::size_t>(n));
+  const std::size_t un = m.num_points, cells = static_cast<std::size_t>(total_cells);
+  thrust::device_vector<std::int32_t> seg_of_point, cell_count, rank, sort_index, next;
+  thrust::device_vector<std::int64_t> keys;
+  thrust::device_vector<Vec3f> sort_points;
   // All algorithms run on raw pointers with an explicit policy: Thrust's OpenMP algorithms read
   // device_vector iterators through device_reference, which binds a reference through a null policy
   // pointer (UBSan reports it). Points are bucketed by a counting sort (atomics + scan), not thrust::sort,
   // whose OpenMP version does the same internally.
-  thrust::upper_bound(thrust::device, raw(m.segment_offsets) + 1,
-                      raw(m.segment_offsets) + m.segment_offsets.size(),
+  thrust::upper_bound(thrust::device(m.ws.temp), ptr(m.segment_offsets) + 1,
+                      ptr(m.segment_offsets) + m.segment_offsets.size(),
                       thrust::counting_iterator<std::int64_t>(0), thrust::counting_iterator<std::int64_t>(n),
-                      raw(seg_of_point));
-  thrust::device_vector<std::int64_t> keys(static_cast<std::size_t>(n));
+                      reuse(seg_of_point, un, allocs));
   thrust::transform(thrust::device, thrust::counting_iterator<std::int64_t>(0),
-                    thrust::counting_iterator<std::int64_t>(n), raw(keys),
-                    CellKey{raw(m.points), raw(seg_of_point), raw(m.grid_segments)});
-  thrust::device_vector<std::int32_t> cell_count(static_cast<std::size_t>(total_cells) + 1, 0),
-      rank(seg_of_point.size());
+                    thrust::counting_iterator<std::int64_t>(n), reuse(keys, un, allocs),
+                    CellKey{ptr(m.points), ptr(seg_of_point), ptr(m.grid_segments)});
+  m.shape.launch("point_segment", 1, n);
+  m.shape.launch("cell_keys", 1, n);
+  thrust::fill_n(thrust::device, reuse(cell_count, cells + 1, allocs), total_cells + 1, 0);
   const thrust::counting_iterator<std::int64_t> first(0);
-  thrust::for_each(thrust::device, first, first + n, CountCells{raw(keys), raw(cell_count), raw(rank)});
-  m.cell_start.resize(static_cast<std::size_t>(total_cells) + 1);
-  thrust::exclusive_scan(thrust::device, raw(cell_count), raw(cell_count) + total_cells + 1,
-                         raw(m.cell_start));
-  m.grid_points.resize(static_cast<std::size_t>(n));
-  m.grid_index.resize(static_cast<std::size_t>(n));
   thrust::for_each(thrust::device, first, first + n,
-                   PlaceInCells{raw(keys), raw(rank), raw(m.cell_start), raw(m.points), raw(m.grid_points),
-                                raw(m.grid_index)});
-  thrust::for_each(thrust::device, first, first + total_cells,
-                   OrderCell{raw(m.cell_start), raw(m.grid_points), raw(m.grid_index)});
+                   CountCells{ptr(keys), ptr(cell_count), reuse(rank, un, allocs)});
+  m.shape.launch("count_cells", 1, n);
+  thrust::exclusive_scan(thrust::device(m.ws.temp), ptr(cell_count), ptr(cell_count) + total_cells + 1,
+                         reuse(m.cell_start, cells + 1, allocs));
+  m.shape.launch("cell_scan", 1, total_cells + 1);
+  thrust::for_each(thrust::device, first, first + n,
+                   PlaceInCells{ptr(keys), ptr(rank), ptr(m.cell_start), ptr(m.points),
+                                reuse(m.grid_points, un, allocs), reuse(m.grid_index, un, allocs)});
+  m.shape.launch("place_in_cells", 1, n);
+  // Cells hold ~points_per_cell points, but a dense cluster or coincident points make one cell large.
+  const std::int64_t max_cell =
+      max_segment_size(ptr(m.cell_start), total_cells, reuse(m.ws.scalar, 1, allocs), m.shape, "cell_max");
+  if (max_cell > 1)
+    segmented_sort(ptr(m.cell_start), int(total_cells), n, max_cell, ptr(m.grid_index), ptr(m.grid_points),
+                   reuse(sort_index, un, allocs), reuse(sort_points, un, allocs), IndexLess{}, m.shape,
+                   "cell_sort");
   // Cell representatives by jump flooding: one pass per step for all segments (steps of the largest grid).
-  m.cell_rep.assign(static_cast<std::size_t>(total_cells), -1);
-  thrust::device_vector<std::int32_t> next(static_cast<std::size_t>(total_cells), -1);
-  thrust::for_each(thrust::device, first, first + total_cells, RepInit{m.grid_view(), raw(m.cell_rep)});
+  thrust::for_each(thrust::device, first, first + total_cells,
+                   RepInit{m.grid_view(), reuse(m.cell_rep, cells, allocs)});
+  m.shape.launch("rep_init", 1, total_cells);
+  reuse(next, cells, allocs);
   GridSegment largest;
   for (const GridSegment& s : segs)
     if (std::max({s.nx, s.ny, s.nz}) > std::max({largest.nx, largest.ny, largest.nz})) largest = s;
   for (int step : grid_jfa_steps(largest)) {
     thrust::for_each(thrust::device, first, first + total_cells,
-                     JfaStep{raw(m.grid_segments), int(segs.size()), raw(m.grid_points), raw(m.cell_rep),
-                             raw(next), step});
+                     JfaStep{ptr(m.grid_segments), int(segs.size()), ptr(m.grid_points), ptr(m.cell_rep),
+                             ptr(next), step});
+    m.shape.launch("jump_flood", 1, total_cells);
     m.cell_rep.swap(next);
   }
+  m.end_call();
+  m.shape.workspace_bytes = m.index_bytes();
 }
 
 template <class System>
@@ -462,7 +507,13 @@ const std::vector<std::int64_t>& KnnIndex<System>::segment_offsets() const {
 template <class System>
 KnnView KnnIndex<System>::view() const {
   const Impl& m = *impl_;
-  return {knn_detail::raw(m.points), knn_detail::raw(m.segment_offsets), int(num_segments()), m.grid_view()};
+  return {ptr(m.points), ptr(m.segment_offsets), int(num_segments()), m.grid_view()};
+}
+
+template <class System>
+LaunchShape KnnIndex<System>::last_launch_shape() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->shape;
 }
 
 template <class System>
@@ -472,24 +523,24 @@ KnnResult KnnIndex<System>::knn(const CloudBatch& queries, const std::vector<std
   validate_knn_settings(settings);
   validate_knn_queries(queries, query_segment, num_segments());
   const Impl& m = *impl_;
+  std::lock_guard<std::mutex> lock(m.mutex);
+  std::int64_t& allocs = m.begin_call();
   const int k = settings.k;
   const std::int64_t nq = std::int64_t(queries.size());
   KnnResult out;
   out.k = k;
   if (nq == 0) return out;
-  const KnnMethod method =
-      resolve_knn_method(settings, max_searched_segment(m.segment_offsets_host, queries, query_segment));
-  thrust::device_vector<Vec3f> q;
-  thrust::device_vector<std::int32_t> qseg;
-  m.upload_queries(queries, query_segment, q, qseg);
-  thrust::device_vector<std::int32_t> idx(static_cast<std::size_t>(nq * k));
-  thrust::device_vector<float> d2(static_cast<std::size_t>(nq * k));
-  m.run_knn(q, qseg, k, settings.max_distance_m, method, settings.memory_budget_bytes,
-            std::int64_t(max_searched_segment(m.segment_offsets_host, queries, query_segment)), idx, d2);
-  out.index.resize(std::size_t(nq * k));
-  out.sq_distance_m2.resize(std::size_t(nq * k));
-  thrust::copy(idx.begin(), idx.end(), out.index.begin());
-  thrust::copy(d2.begin(), d2.end(), out.sq_distance_m2.begin());
+  const std::int64_t max_seg =
+      std::int64_t(max_searched_segment(m.segment_offsets_host, queries, query_segment));
+  const KnnMethod method = resolve_knn_method(settings, std::size_t(max_seg));
+  m.upload_queries(queries, query_segment, allocs);
+  const std::size_t n = std::size_t(nq) * std::size_t(k);
+  std::int32_t* idx = reuse(m.ws.idx, n, allocs);
+  float* d2 = reuse(m.ws.d2, n, allocs);
+  m.run_knn(k, settings.max_distance_m, method, settings.memory_budget_bytes, max_seg, idx, d2, allocs);
+  download<System>(static_cast<const std::int32_t*>(idx), n, out.index, m.ws.staging, allocs);
+  download<System>(static_cast<const float*>(d2), n, out.sq_distance_m2, m.ws.staging, allocs);
+  m.end_call();
   return out;
 }
 
@@ -501,6 +552,9 @@ RadiusResult KnnIndex<System>::radius(const CloudBatch& queries,
   validate_radius_request(radius_m, max_neighbors);
   validate_knn_queries(queries, query_segment, num_segments());
   const Impl& m = *impl_;
+  std::lock_guard<std::mutex> lock(m.mutex);
+  std::int64_t& allocs = m.begin_call();
+  typename Impl::Workspace& w = m.ws;
   const std::int64_t nq = std::int64_t(queries.size());
   RadiusResult out;
   out.offsets.assign(std::size_t(nq) + 1, 0);
@@ -510,51 +564,54 @@ RadiusResult KnnIndex<System>::radius(const CloudBatch& queries,
   const bool use_grid = resolve_knn_method(ks, max_searched_segment(m.segment_offsets_host, queries,
                                                                     query_segment)) == KnnMethod::Grid;
   const thrust::counting_iterator<std::int64_t> first(0);
-  thrust::device_vector<std::int64_t> offsets(static_cast<std::size_t>(nq) + 1, 0);
-  thrust::device_vector<std::int32_t> idx;
-  thrust::device_vector<float> d2;
+  m.upload_queries(queries, query_segment, allocs);
+  const Vec3f* q = ptr(w.queries);
+  const std::int32_t* qseg = ptr(w.query_segment);
+  std::int64_t* offsets = reuse(w.offsets, std::size_t(nq) + 1, allocs);
+  thrust::fill_n(thrust::device, offsets, 1, std::int64_t(0));
+  std::int32_t* idx = nullptr;
+  float* d2 = nullptr;
 
   if (max_neighbors > 0) {  // the nearest max_neighbors within the radius = kNN with a distance cap
-    ks.k = max_neighbors;
-    ks.max_distance_m = radius_m;
-    ks.method = use_grid ? KnnMethod::Grid : KnnMethod::PerQuery;
-    thrust::device_vector<Vec3f> q;
-    thrust::device_vector<std::int32_t> qseg;
-    m.upload_queries(queries, query_segment, q, qseg);
-    thrust::device_vector<std::int32_t> li(std::size_t(nq) * std::size_t(max_neighbors));
-    thrust::device_vector<float> ld(li.size());
-    m.run_knn(q, qseg, max_neighbors, radius_m, ks.method, ks.memory_budget_bytes, 0, li, ld);
-    thrust::transform(thrust::device, first, first + nq, raw(offsets) + 1, ListCount{raw(li), max_neighbors});
-    thrust::inclusive_scan(thrust::device, raw(offsets) + 1, raw(offsets) + nq + 1, raw(offsets) + 1);
-    // One scalar to the host by copy: reading a device_reference trips UBSan on the OpenMP system.
-    std::int64_t total = 0;
-    thrust::copy(offsets.end() - 1, offsets.end(), &total);
-    idx.resize(std::size_t(total));
-    d2.resize(std::size_t(total));
+    const std::size_t lists = std::size_t(nq) * std::size_t(max_neighbors);
+    std::int32_t* li = reuse(w.list_idx, lists, allocs);
+    float* ld = reuse(w.list_d2, lists, allocs);
+    m.run_knn(max_neighbors, radius_m, use_grid ? KnnMethod::Grid : KnnMethod::PerQuery,
+              ks.memory_budget_bytes, 0, li, ld, allocs);
+    thrust::transform(thrust::device, first, first + nq, offsets + 1, ListCount{li, max_neighbors});
+    m.shape.launch("list_count", 1, nq);
+    m.scan_offsets(nq, out.offsets, allocs);
+    const std::size_t total = std::size_t(out.offsets.back());
+    idx = reuse(w.idx, total, allocs);
+    d2 = reuse(w.d2, total, allocs);
     thrust::for_each(thrust::device, first, first + nq,
-                     CompactLists{raw(li), raw(ld), max_neighbors, raw(offsets), raw(idx), raw(d2)});
-  } else {
-    thrust::device_vector<Vec3f> q;
-    thrust::device_vector<std::int32_t> qseg;
-    m.upload_queries(queries, query_segment, q, qseg);
-    thrust::transform(thrust::device, first, first + nq, raw(offsets) + 1,
-                      RadiusCount{raw(m.points), raw(m.segment_offsets), m.grid_view(), use_grid, raw(q),
-                                  raw(qseg), radius_m});
-    thrust::inclusive_scan(thrust::device, raw(offsets) + 1, raw(offsets) + nq + 1, raw(offsets) + 1);
-    // One scalar to the host by copy: reading a device_reference trips UBSan on the OpenMP system.
-    std::int64_t total = 0;
-    thrust::copy(offsets.end() - 1, offsets.end(), &total);
-    idx.resize(std::size_t(total));
-    d2.resize(std::size_t(total));
+                     CompactLists{li, ld, max_neighbors, offsets, idx, d2});
+    m.shape.launch("compact_lists", 1, nq);
+  } else {  // count, allocate, write in visiting order, then sort each query's results
+    thrust::transform(
+        thrust::device, first, first + nq, offsets + 1,
+        RadiusCount{ptr(m.points), ptr(m.segment_offsets), m.grid_view(), use_grid, q, qseg, radius_m});
+    m.shape.launch("radius_count", 1, nq);
+    m.scan_offsets(nq, out.offsets, allocs);
+    const std::size_t total = std::size_t(out.offsets.back());
+    std::int64_t max_found = 0;
+    for (std::int64_t i = 0; i < nq; ++i)
+      max_found = std::max(max_found, out.offsets[std::size_t(i) + 1] - out.offsets[std::size_t(i)]);
+    idx = reuse(w.idx, total, allocs);
+    d2 = reuse(w.d2, total, allocs);
     thrust::for_each(thrust::device, first, first + nq,
-                     RadiusFill{raw(m.points), raw(m.segment_offsets), m.grid_view(), use_grid, raw(q),
-                                raw(qseg), radius_m, raw(offsets), raw(idx), raw(d2)});
+                     RadiusFill{ptr(m.points), ptr(m.segment_offsets), m.grid_view(), use_grid, q, qseg,
+                                radius_m, offsets, idx, d2});
+    m.shape.launch("radius_fill", 1, nq);
+    if (max_found > 1)
+      segmented_sort(static_cast<const std::int64_t*>(offsets), int(nq), std::int64_t(total), max_found, d2,
+                     idx, reuse(w.sort_d2, total, allocs), reuse(w.sort_idx, total, allocs), PairLess{},
+                     m.shape, "radius_sort");
   }
-  thrust::copy(offsets.begin(), offsets.end(), out.offsets.begin());
-  out.index.resize(idx.size());
-  out.sq_distance_m2.resize(d2.size());
-  thrust::copy(idx.begin(), idx.end(), out.index.begin());
-  thrust::copy(d2.begin(), d2.end(), out.sq_distance_m2.begin());
+  const std::size_t total = std::size_t(out.offsets.back());
+  download<System>(static_cast<const std::int32_t*>(idx), total, out.index, w.staging, allocs);
+  download<System>(static_cast<const float*>(d2), total, out.sq_distance_m2, w.staging, allocs);
+  m.end_call();
   return out;
 }
 

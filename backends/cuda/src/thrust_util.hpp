@@ -5,16 +5,22 @@
 #include <thrust/device_ptr.h>
 #include <thrust/device_vector.h>
 
+#include <thrust/host_vector.h>
+
 #if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_CUDA
 #include <thrust/system/cuda/execution_policy.h>
+#include <thrust/system/cuda/memory.h>
 #endif
 
 #include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <memory>
+#include <type_traits>
 #include <vector>
 
 #include "perch2/cuda/launch_plan.hpp"
+#include "perch2/cuda/system.hpp"
 
 namespace perch2::thrust_backend {
 
@@ -99,6 +105,45 @@ void append_to_host(std::vector<T>& out, const T* device, std::size_t n) {
   out.resize(at + n);
   const auto p = thrust::device_pointer_cast(device);
   thrust::copy(p, p + std::ptrdiff_t(n), out.begin() + std::ptrdiff_t(at));
+}
+
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_CUDA
+template <class T>
+using PinnedAllocator = thrust::cuda::universal_host_pinned_allocator<T>;  // cudaMallocHost
+#else
+template <class T>
+using PinnedAllocator = std::allocator<T>;  // no page-locked memory without the CUDA runtime
+#endif
+
+/// Host staging memory of a System (see System::pinned_host_buffers): pinned on CUDA, plain elsewhere.
+template <class System, class T>
+using HostBuffer = thrust::host_vector<
+    T, std::conditional_t<System::pinned_host_buffers, PinnedAllocator<T>, std::allocator<T>>>;
+
+/// Device -> host copy of n elements from a raw device pointer into out (resized to n). With pinned host
+/// buffers the copy lands in `staging` (grown only; a growth counts in `allocations`: cudaMallocHost is as
+/// costly as a device allocation) and is then copied into out; otherwise it goes straight into out.
+template <class System, class T>
+void download(const T* device, std::size_t n, std::vector<T>& out, HostBuffer<System, unsigned char>& staging,
+              std::int64_t& allocations) {
+  out.resize(n);
+  if (n == 0) return;  // Thrust's cross-system copy takes &*out even for an empty range
+  const auto p = thrust::device_pointer_cast(device);
+  if constexpr (System::pinned_host_buffers) {
+    const std::size_t bytes = n * sizeof(T);
+    if (staging.capacity() < bytes) {
+      staging.clear();
+      staging.shrink_to_fit();
+      staging.reserve(bytes);
+      ++allocations;
+    }
+    staging.resize(bytes);
+    T* host = reinterpret_cast<T*>(thrust::raw_pointer_cast(staging.data()));  // page-aligned
+    thrust::copy(p, p + std::ptrdiff_t(n), host);
+    std::copy(host, host + n, out.begin());
+  } else {
+    thrust::copy(p, p + std::ptrdiff_t(n), out.begin());
+  }
 }
 
 /// One device allocation reused for a stage's per-chunk buffers: each chunk carves its arrays from it (in

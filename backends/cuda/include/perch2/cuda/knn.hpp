@@ -37,6 +37,10 @@ class PERCH2_API KnnIndex {
   /// ...)). Valid while the index lives.
   KnnView view() const;
 
+  /// Passes, work items and device (and pinned host) allocations of the last knn()/radius() call, or of
+  /// the build before any call (see LaunchShape). A repeated call of the same size allocates nothing.
+  LaunchShape last_launch_shape() const;
+
   std::size_t num_segments() const;
   std::size_t num_points() const;
   const std::vector<std::int64_t>& segment_offsets() const;  ///< host copy, num_segments() + 1

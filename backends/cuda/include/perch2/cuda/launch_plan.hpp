@@ -94,4 +94,29 @@ inline std::int64_t registration_items(const std::vector<std::int64_t>& cloud_of
   return items;
 }
 
+/// kNN I (tiled all-pairs) tiles: `rows` queries x `width` target columns of float distances within the
+/// budget (a tile is at least one query row).
+struct KnnTiles {
+  std::int64_t rows = 1, width = 1;
+};
+inline KnnTiles plan_knn_tiles(std::int64_t queries, std::int64_t max_segment, std::size_t budget_bytes) {
+  const std::int64_t budget = std::max<std::int64_t>(1, std::int64_t(budget_bytes / sizeof(float)));
+  KnnTiles t;
+  t.width = std::max<std::int64_t>(1, std::min(max_segment, budget));
+  t.rows = std::max<std::int64_t>(1, std::min(queries, budget / t.width));
+  return t;
+}
+
+/// Segmented sorts (kNN radius results per query, grid cells by point index): elements sorted in one work
+/// item by rank in a run (segment-aligned; O(run) compares each), then merged by passes that double the
+/// sorted runs (one binary search per element), so no work item handles a whole large segment.
+constexpr std::int64_t segmented_sort_run = 16;
+
+/// Run widths of the merge passes for a largest segment of max_segment elements (none if it fits one run).
+inline std::vector<std::int64_t> segmented_sort_merge_widths(std::int64_t max_segment) {
+  std::vector<std::int64_t> widths;
+  for (std::int64_t w = segmented_sort_run; w < max_segment; w *= 2) widths.push_back(w);
+  return widths;
+}
+
 }  // namespace perch2::thrust_backend

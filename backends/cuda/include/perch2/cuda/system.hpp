@@ -35,6 +35,10 @@ struct PERCH2_API CudaSystem {
   static constexpr int registration_points_per_item = 8;
   /// Results equal the reference backend's bit for bit (false only in a PERCH2_CUDA_FMA=ON build).
   static constexpr bool bitwise_reproducible = PERCH2_CUDA_FMA == 0;
+  /// Device -> host copies of stage results land in a page-locked (pinned) staging buffer the stage object
+  /// keeps: one DMA at full bus bandwidth instead of the driver's chunked copy through its own pinned
+  /// bounce buffer (HostBuffer in the backend's thrust_util.hpp).
+  static constexpr bool pinned_host_buffers = true;
 };
 struct PERCH2_API OmpSystem {
   static constexpr const char* name = "thrust_omp";
@@ -42,6 +46,7 @@ struct PERCH2_API OmpSystem {
   static constexpr int render_elements_per_item = 64;      ///< ~10^4 items per chunk: enough for any CPU
   static constexpr int registration_points_per_item = 64;  ///< as measured in the README's tables
   static constexpr bool bitwise_reproducible = true;
+  static constexpr bool pinned_host_buffers = false;  ///< host memory is device memory: copy directly
 };
 
 /// What the last call of a stage object launched and allocated: lets a GPU user see the launch shapes and
@@ -56,7 +61,8 @@ struct LaunchShape {
     std::int64_t max_items = 0;  ///< work items of the largest launch (the parallelism a GPU sees)
   };
   std::vector<Pass> passes;
-  std::int64_t device_allocations = 0;  ///< device allocations the call made (0 once workspaces are warm)
+  /// Device (and pinned host) allocations the call made (0 once workspaces are warm).
+  std::int64_t device_allocations = 0;
   std::size_t peak_chunk_bytes = 0;  ///< largest chunk working memory (renderer: within memory_budget_bytes)
   std::size_t workspace_bytes = 0;   ///< device memory the stage object keeps between calls
 
