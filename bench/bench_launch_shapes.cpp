@@ -44,6 +44,13 @@ void print_pass(const char* system, const std::string& problem, const LaunchShap
               (long long)p.items);
 }
 
+/// Parallel launches of a call (on OpenMP each is a parallel region ending in a barrier).
+std::int64_t launches(const LaunchShape& shape) {
+  std::int64_t n = 0;
+  for (const auto& p : shape.passes) n += p.launches;
+  return n;
+}
+
 void print_header() {
   std::printf(
       "| system      | problem                    | pass               | el/it | launches | items/launch |"
@@ -72,6 +79,7 @@ LaunchShape planned_render(const MeshArrays& mesh, const std::vector<Hypothesis>
     shape.launch("rasterize", block, ch.triangles.blocks.back());
     shape.launch("resolve", block, ch.pixels.blocks.back());
     shape.launch("scatter", block, ch.pixels.blocks.back());
+    ++shape.chunks;
     shape.peak_chunk_bytes = std::max(shape.peak_chunk_bytes, ch.arena_bytes());
   }
   return shape;
@@ -101,21 +109,23 @@ void render_shapes(int num_poses) {
     const LaunchShape cuda = planned_render<CudaSystem>(arrays, hyps, stride);
     for (const auto& p : cuda.passes) print_pass("cuda (plan)", problem, p);
     char line[256];
-    std::snprintf(line, sizeof line, "| %-26s | %13.1f | %10d | %11lld | %11lld | %14.1f |", problem.c_str(),
-                  double(omp.peak_chunk_bytes) / (1 << 20), int(omp.find("rasterize")->launches),
-                  (long long)cold, (long long)omp.device_allocations,
-                  double(cuda.peak_chunk_bytes) / (1 << 20));
+    std::snprintf(line, sizeof line, "| %-26s | %13.1f | %10d | %12lld | %11lld | %11lld | %14.1f | %13lld |",
+                  problem.c_str(), double(omp.peak_chunk_bytes) / (1 << 20), int(omp.chunks),
+                  (long long)launches(omp), (long long)cold, (long long)omp.device_allocations,
+                  double(cuda.peak_chunk_bytes) / (1 << 20), (long long)launches(cuda));
     memory.push_back(line);
   }
   std::printf(
-      "\nDevice memory and allocations per render() call (thrust_omp measured; cuda chunk arena "
-      "planned):\n\n");
+      "\nDevice memory, allocations and parallel launches per render() call (thrust_omp measured: whole "
+      "hypotheses per work item; cuda planned: passes):\n\n");
   std::printf(
-      "| problem                    | omp chunk MiB | omp chunks | allocs cold | allocs warm | cuda chunk "
-      "MiB |\n");
+      "| problem                    | omp chunk MiB | omp chunks | omp launches | allocs cold | allocs warm "
+      "| "
+      "cuda chunk MiB | cuda launches |\n");
   std::printf(
-      "|----------------------------|---------------|------------|-------------|-------------|---------------"
-      "-|\n");
+      "|----------------------------|---------------|------------|--------------|-------------|-------------|"
+      "-"
+      "---------------|---------------|\n");
   for (const auto& l : memory) std::printf("%s\n", l.c_str());
 }
 

@@ -1,4 +1,6 @@
 // Batch renderer: analytic renders, stride sampling, colours, occluders, cross-backend equality, bad input.
+#include <omp.h>
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -57,11 +59,18 @@ float inside_distance(const std::vector<Eigen::Vector2f>& hull, Eigen::Vector2f 
 // perch2::cuda built with PERCH2_CUDA_FMA=ON does not (Backend::bitwise_reproducible is false there).
 static_assert(cpu::Backend::bitwise_reproducible && thrust_omp::Backend::bitwise_reproducible);
 
+/// The Thrust renderer with the GPU's pass structure, run on OpenMP (checks the CUDA path's passes).
+using PassesRenderer = thrust_backend::Renderer<thrust_backend::OmpPassesSystem>;
+
 void require_equal_batches(const CloudBatch& a, const CloudBatch& b) {
   REQUIRE(a.offsets == b.offsets);
   REQUIRE(a.size() == b.size());
+  // Same float operations in the same order on both backends: equality is exact. Whole arrays compare in
+  // one assertion (the element-wise form dominated the suite's time); the first difference is reported.
+  if (a.x == b.x && a.y == b.y && a.z == b.z && a.rgb == b.rgb && a.pixel == b.pixel && a.cloud == b.cloud)
+    return;
   for (std::size_t i = 0; i < a.size(); ++i) {
-    // Same float operations in the same order on both backends: equality is exact.
+    CAPTURE(i);
     REQUIRE(a.x[i] == b.x[i]);
     REQUIRE(a.y[i] == b.y[i]);
     REQUIRE(a.z[i] == b.z[i]);
@@ -324,18 +333,21 @@ TEST_CASE("both backends render identical batches for random meshes and poses") 
 
   const cpu::Renderer reference(models);
   const thrust_omp::Backend::Renderer thrust_renderer(models);
+  const PassesRenderer passes_renderer(models);
   for (int stride : {1, 4}) {
     for (bool cull : {true, false}) {
       RenderSettings s = at_stride(stride);
       s.cull_back_faces = cull;
       s.near_m = 0.05f;
-      s.memory_budget_bytes = std::size_t(1) << 16;  // one or two hypotheses per chunk in the Thrust backend
       CAPTURE(stride);
       CAPTURE(cull);
-      const CloudBatch a = reference.render(hyps, K, s), b = thrust_renderer.render(hyps, K, s);
+      const CloudBatch a = reference.render(hyps, K, s), occluded = reference.render(hyps, K, s, &occ);
       CHECK(a.size() > 1000);
-      require_equal_batches(a, b);
-      require_equal_batches(reference.render(hyps, K, s, &occ), thrust_renderer.render(hyps, K, s, &occ));
+      require_equal_batches(a, thrust_renderer.render(hyps, K, s));
+      require_equal_batches(occluded, thrust_renderer.render(hyps, K, s, &occ));
+      s.memory_budget_bytes = std::size_t(1) << 16;  // one or two hypotheses per chunk in passes
+      require_equal_batches(a, passes_renderer.render(hyps, K, s));
+      require_equal_batches(occluded, passes_renderer.render(hyps, K, s, &occ));
     }
   }
 }
@@ -355,6 +367,7 @@ TEST_CASE("real scanned models render identically on both backends, in their own
   const thrust_omp::Backend::Renderer thrust_renderer(models);
   const CloudBatch a = reference.render(hyps, K, s);
   require_equal_batches(a, thrust_renderer.render(hyps, K, s));
+  require_equal_batches(a, PassesRenderer(models).render(hyps, K, s));
 
   // The banana's texture is mostly yellow (red and green well above blue); the cat's vertex colours are
   // mostly pink-brown (red above green and blue). Shading is unlit, so colours are the model's own.
@@ -415,7 +428,8 @@ TEST_CASE_TEMPLATE("bad render inputs raise InvalidInput naming the input", B, P
                        InvalidInput);
 }
 
-TEST_CASE("thrust renderer: chunk device memory stays within memory_budget_bytes, outputs included") {
+TEST_CASE(
+    "thrust renderer in passes: chunk device memory stays within memory_budget_bytes, outputs included") {
   // The chunk planner counts every device array of a chunk, including the compacted outputs (24 bytes per
   // visible sample) and the scan's temporaries; LaunchShape::peak_chunk_bytes is what the backend actually
   // allocated for chunks (its arena and temporary blocks), not an estimate.
@@ -424,7 +438,7 @@ TEST_CASE("thrust renderer: chunk device memory stays within memory_budget_bytes
   const Intrinsics K = vga_camera();
   std::vector<Hypothesis> hyps;
   for (int k = 0; k < 60; ++k) hyps.push_back({k % 2, test::random_pose(rng, 0.8f, 1.2f, 0.1f)});
-  const thrust_omp::Backend::Renderer renderer(models);
+  const PassesRenderer renderer(models);
   RenderSettings s = at_stride(1);
   s.memory_budget_bytes = std::size_t(1) << 30;
   const CloudBatch whole = renderer.render(hyps, K, s);
@@ -444,15 +458,15 @@ TEST_CASE("thrust renderer: chunk device memory stays within memory_budget_bytes
   }
 }
 
-TEST_CASE("thrust renderer: launch shape counts every pass's work items") {
+TEST_CASE("thrust renderer in passes: launch shape counts every pass's work items") {
   std::mt19937 rng(43);
   const std::vector<Mesh> models{test::make_blob(rng, 0.06f, 10, 12)};
   std::vector<Hypothesis> hyps;
   for (int k = 0; k < 7; ++k) hyps.push_back({0, test::random_pose(rng, 0.5f, 0.8f, 0.1f)});
-  const thrust_omp::Backend::Renderer renderer(models);
+  const PassesRenderer renderer(models);
   renderer.render(hyps, vga_camera(), at_stride(2));
   const thrust_backend::LaunchShape shape = renderer.last_launch_shape();
-  const int block = thrust_backend::OmpSystem::render_elements_per_item;
+  const int block = thrust_backend::OmpPassesSystem::render_elements_per_item;
   const std::int64_t tri = std::int64_t(models[0].triangles.size());
   const auto* raster = shape.find("rasterize");
   REQUIRE(raster != nullptr);
@@ -460,4 +474,36 @@ TEST_CASE("thrust renderer: launch shape counts every pass's work items") {
   CHECK(raster->items == 7 * ((tri + block - 1) / block));  // one chunk: every hypothesis' triangles
   CHECK(shape.find("roi")->items == 7);
   CHECK(shape.device_allocations > 0);  // the first call builds the workspace
+}
+
+TEST_CASE("thrust renderer on CPU systems: two parallel passes per chunk, within memory_budget_bytes") {
+  // Whole hypotheses per work item (OmpSystem::render_whole_hypotheses): a call launches the ROI pass and,
+  // per chunk, one rendering and one compaction pass, so few parallel regions (each a barrier that waits
+  // for a descheduled thread on a shared CPU) whatever the batch size.
+  std::mt19937 rng(47);
+  std::vector<Mesh> models{test::make_blob(rng, 0.08f, 16, 24), test::make_box(0.12f, 0.1f, 0.08f)};
+  const Intrinsics K = vga_camera();
+  std::vector<Hypothesis> hyps;
+  for (int k = 0; k < 300; ++k) hyps.push_back({k % 2, test::random_pose(rng, 0.8f, 1.2f, 0.1f)});
+  const thrust_omp::Backend::Renderer renderer(models);
+  const CloudBatch whole = renderer.render(hyps, K, at_stride(4));
+  const thrust_backend::LaunchShape shape = renderer.last_launch_shape();
+  CHECK(shape.chunks == 1);  // the default budget holds 300 hypotheses at stride 4
+  REQUIRE(shape.passes.size() == 3);
+  CHECK(shape.find("roi")->launches == 1);
+  CHECK(shape.find("render_hypotheses")->launches == 1);
+  CHECK(shape.find("render_hypotheses")->items == omp_get_max_threads());
+  CHECK(shape.find("scatter")->items == 300);
+  CHECK(shape.peak_chunk_bytes <= thrust_backend::OmpSystem::default_chunk_bytes);
+  RenderSettings s = at_stride(4);
+  s.memory_budget_bytes = std::size_t(1) << 20;
+  require_equal_batches(whole, renderer.render(hyps, K, s));  // chunking never changes the result
+  const thrust_backend::LaunchShape chunked = renderer.last_launch_shape();
+  CHECK(chunked.chunks > 1);
+  CHECK(chunked.find("render_hypotheses")->launches == chunked.chunks);
+  CHECK(chunked.find("scatter")->launches == chunked.chunks);
+  CHECK(chunked.peak_chunk_bytes <= s.memory_budget_bytes);
+  CHECK(chunked.peak_chunk_bytes > s.memory_budget_bytes / 2);  // chunks are filled, not tiny
+  renderer.render(hyps, K, s);
+  CHECK(renderer.last_launch_shape().device_allocations == 0);  // the workspace is warm
 }

@@ -18,7 +18,7 @@ std::vector<DepthTriangle> zbuffer(const MeshView& m, const Pose& T_cam_obj, con
                                    int stride) {
   const Rigid3f T = to_rigid(T_cam_obj);
   const GridRoi roi = model_roi(m, T, K, stride, 0.01f);
-  std::vector<Vec3f> p_cam(std::size_t(m.num_vertices));
+  std::vector<PosedPoint> p_cam(std::size_t(m.num_vertices));
   std::vector<GridSpan> spans(std::size_t(m.num_vertices));
   pose_vertices(m, T, K, stride, 0.01f, 0, m.num_vertices, p_cam.data(), spans.data());
   std::vector<DepthTriangle> z(std::size_t(roi.size()), kEmptyPixel);

@@ -19,31 +19,19 @@ struct LocalCloud {
 /// Scratch reused by one thread across hypotheses (no per-hypothesis frame allocation).
 struct Scratch {
   std::vector<DepthTriangle> zbuf;
-  std::vector<Vec3f> verts_cam;
+  std::vector<PosedPoint> verts_cam;
   std::vector<GridSpan> spans;
 };
 
-void render_one(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label, const Intrinsics& K,
-                const RenderSettings& s, const OccluderView& occ, Scratch& scratch, LocalCloud& out) {
-  out.samples.clear();
-  const GridRoi roi = model_roi(m, T_cam_obj, K, s.stride, s.near_m);
-  if (roi.size() == 0) return;
+void render_one(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label, const RenderParams& p,
+                Scratch& scratch, LocalCloud& out) {
+  const GridRoi roi = model_roi(m, T_cam_obj, p.K, p.stride, p.near_m);
   scratch.verts_cam.resize(std::size_t(m.num_vertices));
   scratch.spans.resize(std::size_t(m.num_vertices));
-  pose_vertices(m, T_cam_obj, K, s.stride, s.near_m, 0, m.num_vertices, scratch.verts_cam.data(),
-                scratch.spans.data());
-  const PosedVertices posed{scratch.verts_cam.data(), scratch.spans.data()};
-  scratch.zbuf.assign(std::size_t(roi.size()), kEmptyPixel);
-  DepthTriangle* zbuf = scratch.zbuf.data();
-  rasterize_triangles(m, posed, 0, m.num_triangles, T_cam_obj, K, s.stride, s.near_m, roi, s.cull_back_faces,
-                      [zbuf](int idx, DepthTriangle w) { zbuf[idx] = std::min(zbuf[idx], w); });
-  for (int j = 0; j < roi.height; ++j)
-    for (int i = 0; i < roi.width; ++i) {
-      RenderedSample sample;
-      if (resolve_sample(m, scratch.verts_cam.data(), zbuf[j * roi.width + i], K, s.stride, roi.i0 + i,
-                         roi.j0 + j, occ, label, sample))
-        out.samples.push_back(sample);
-    }
+  scratch.zbuf.resize(std::size_t(roi.size()));
+  out.samples.resize(std::size_t(roi.size()));
+  const HypothesisScratch s{scratch.verts_cam.data(), scratch.spans.data(), scratch.zbuf.data()};
+  out.samples.resize(std::size_t(render_hypothesis(m, T_cam_obj, label, roi, p, s, out.samples.data())));
 }
 
 }  // namespace
@@ -69,11 +57,11 @@ std::size_t Renderer::num_models() const {
 CloudBatch Renderer::render(const std::vector<Hypothesis>& hypotheses, const Intrinsics& camera,
                             const RenderSettings& settings, const Occluders* occluders) const {
   validate_render_request(hypotheses, impl_->meshes.size(), camera, settings, occluders);
-  OccluderView occ;
+  RenderParams p{camera, settings.stride, settings.near_m, settings.cull_back_faces, OccluderView{}};
   if (occluders) {
-    occ.depth_m = occluders->depth_m.data.data();
-    occ.labels = occluders->labels.empty() ? nullptr : occluders->labels.data.data();
-    occ.margin_m = settings.occlusion_margin_m;
+    p.occ.depth_m = occluders->depth_m.data.data();
+    p.occ.labels = occluders->labels.empty() ? nullptr : occluders->labels.data.data();
+    p.occ.margin_m = settings.occlusion_margin_m;
   }
   const int n = int(hypotheses.size());
   std::vector<Rigid3f> T(static_cast<std::size_t>(n));
@@ -88,7 +76,7 @@ CloudBatch Renderer::render(const std::vector<Hypothesis>& hypotheses, const Int
     const int end = std::min(n, begin + kChunk);
 #pragma omp parallel for schedule(dynamic, 1)
     for (int h = begin; h < end; ++h)
-      render_one(impl_->views[hypotheses[h].model], T[h], hypotheses[h].label, camera, settings, occ,
+      render_one(impl_->views[hypotheses[h].model], T[h], hypotheses[h].label, p,
                  scratch[omp_get_thread_num()], local[h - begin]);
     for (int h = begin; h < end; ++h) {
       const auto& samples = local[h - begin].samples;

@@ -1,7 +1,10 @@
 // Thrust batch renderer (compiled by render.cu with nvcc and by render_omp.cpp with g++).
-// Per chunk of hypotheses: transform vertices (hypothesis x vertex), rasterise (hypothesis x triangle) into
-// per-hypothesis ROI z-buffers with a packed 64-bit atomic min, resolve (hypothesis x ROI sample), then
-// compact the visible samples with a scan. Chunks are sized to RenderSettings::memory_budget_bytes.
+// In passes (GPU systems): per chunk of hypotheses, transform vertices (hypothesis x vertex), rasterise
+// (hypothesis x triangle) into per-hypothesis ROI z-buffers with a packed 64-bit atomic min, resolve
+// (hypothesis x ROI sample), then compact the visible samples with a scan.
+// Whole hypotheses (CPU systems, System::render_whole_hypotheses): per chunk, one pass whose work items
+// each render whole hypotheses (render_hypothesis, the reference backend's code) pulled from a counter, and
+// one pass that compacts them. Chunks are sized to RenderSettings::memory_budget_bytes.
 #include <thrust/device_vector.h>
 #include <thrust/execution_policy.h>
 #include <thrust/fill.h>
@@ -14,6 +17,9 @@
 #include <algorithm>
 #include <cuda/atomic>
 #include <mutex>
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
+#include <omp.h>
+#endif
 
 #include "perch2/core/segments.hpp"
 #include "perch2/cuda/launch_plan.hpp"
@@ -28,6 +34,7 @@ namespace render_detail {
 /// One model's arrays in device memory.
 struct DeviceMesh {
   thrust::device_vector<Vec3f> vertices;
+  thrust::device_vector<float> vertex_xyz;
   thrust::device_vector<std::int32_t> triangles;
   thrust::device_vector<Rgb8> vertex_colors, texture;
   thrust::device_vector<Vec2f> corner_uvs;
@@ -36,13 +43,14 @@ struct DeviceMesh {
 
   explicit DeviceMesh(const MeshArrays& a)
       : vertices(to_device(a.vertices)),
+        vertex_xyz(to_device(a.vertex_xyz)),
         triangles(to_device(a.triangles)),
         vertex_colors(to_device(a.vertex_colors)),
         texture(to_device(a.texture)),
         corner_uvs(to_device(a.corner_uvs)),
         clusters(to_device(a.clusters)),
-        view(a.view(ptr(vertices), ptr(triangles), ptr(vertex_colors), ptr(corner_uvs), ptr(texture),
-                    ptr(clusters))) {}
+        view(a.view(ptr(vertices), ptr(vertex_xyz), ptr(triangles), ptr(vertex_colors), ptr(corner_uvs),
+                    ptr(texture), ptr(clusters))) {}
 };
 
 /// Per-hypothesis inputs of one render call, in device memory.
@@ -76,11 +84,16 @@ struct ChunkArgs {
   int first, count, block;
   const GridRoi* roi;  // per chunk hypothesis
   Domain vertices, triangles, pixels;
-  Vec3f* verts_cam;
+  PosedPoint* verts_cam;
   GridSpan* spans;
   DepthTriangle* zbuf;
   PERCH2_HD BlockRange range(const Domain& d, std::int64_t item) const {
     return block_range(d.blocks, d.elements, count, item, block);
+  }
+  /// Posed vertices of the chunk's hypothesis `segment`.
+  PERCH2_HD PosedVertices posed(int segment) const {
+    const std::int64_t base = vertices.elements[segment];
+    return {verts_cam + base, spans + base};
   }
 };
 
@@ -112,8 +125,7 @@ struct Rasterize {
     const GridRoi roi = c.roi[r.segment];
     if (roi.size() == 0) return;
     DepthTriangle* zbuf = c.zbuf + c.pixels.elements[r.segment];
-    const std::int64_t base = c.vertices.elements[r.segment];
-    const PosedVertices posed{c.verts_cam + base, c.spans + base};
+    const PosedVertices posed = c.posed(r.segment);
     const MeshView& m = h.views[h.model[hyp]];
     rasterize_triangles(m, posed, int(r.begin), int(r.end), h.T_cam_obj[hyp], K, stride, near_m, roi, cull,
                         [zbuf](int idx, DepthTriangle w) {
@@ -139,7 +151,7 @@ struct Resolve {
     const GridRoi roi = c.roi[r.segment];
     const std::int64_t base = c.pixels.elements[r.segment];
     const MeshView& m = h.views[h.model[hyp]];
-    const Vec3f* verts_cam = c.verts_cam + c.vertices.elements[r.segment];
+    const PosedVertices verts_cam = c.posed(r.segment);
     for (std::int64_t idx = r.begin; idx < r.end; ++idx) {
       const std::int64_t k = base + idx;
       visible[k] = resolve_sample(m, verts_cam, c.zbuf[k], K, stride, roi.i0 + int(idx % roi.width),
@@ -169,6 +181,121 @@ struct Scatter {
     }
   }
 };
+
+/// Work items of the whole-hypothesis pass: the threads of a CPU system (each item pulls hypotheses until
+/// none is left, so one item per thread balances the load dynamically inside one parallel region).
+inline int whole_hypothesis_workers() {
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
+  return omp_get_max_threads();
+#else
+  return 1;  // GPU systems render in passes
+#endif
+}
+
+/// Work item `worker` renders the chunk's hypotheses it pulls from the shared counter `next`, with its own
+/// scratch, into the hypothesis' slice of `samples` (its ROI offset); visible[k]: how many it wrote.
+struct RenderWhole {
+  HypothesisArgs h;
+  RenderParams p;
+  int first, count;
+  const GridRoi* roi;          // per chunk hypothesis
+  const std::int64_t* pixels;  // per chunk hypothesis: its first ROI sample (count + 1)
+  int* next;
+  PosedPoint* p_cam;
+  GridSpan* spans;
+  DepthTriangle* zbuf;
+  std::int64_t max_vertices, max_roi;  // scratch per worker
+  RenderedSample* samples;
+  std::int64_t* visible;
+  PERCH2_HD void operator()(std::int64_t worker) const {
+    const HypothesisScratch s{p_cam + worker * max_vertices, spans + worker * max_vertices,
+                              zbuf + worker * max_roi};
+    cuda::atomic_ref<int, cuda::thread_scope_device> counter(*next);
+    for (int k = counter.fetch_add(1, cuda::memory_order_relaxed); k < count;
+         k = counter.fetch_add(1, cuda::memory_order_relaxed)) {
+      const int hyp = first + k;
+      visible[k] = render_hypothesis(h.views[h.model[hyp]], h.T_cam_obj[hyp], h.label[hyp], roi[k], p, s,
+                                     samples + pixels[k]);
+    }
+  }
+};
+
+/// Copies hypothesis k's visible samples to its output slot (SoA output of the chunk).
+struct ScatterWhole {
+  int first;
+  const std::int64_t *pixels, *visible, *slot;
+  const RenderedSample* samples;
+  float *x, *y, *z;
+  std::uint32_t* rgb;
+  std::int32_t *pixel, *cloud;
+  PERCH2_HD void operator()(std::int64_t k) const {
+    const RenderedSample* in = samples + pixels[k];
+    for (std::int64_t i = 0, s = slot[k]; i < visible[k]; ++i, ++s) {
+      x[s] = in[i].p_cam.x, y[s] = in[i].p_cam.y, z[s] = in[i].p_cam.z, rgb[s] = in[i].rgb;
+      pixel[s] = in[i].pixel, cloud[s] = first + int(k);
+    }
+  }
+};
+
+/// Host -> device copy of a host vector into arena memory.
+template <class T>
+void copy_to(T* device, const std::vector<T>& host) {
+  if (!host.empty()) thrust::copy(host.begin(), host.end(), thrust::device_pointer_cast(device));
+}
+
+/// Renders the batch in whole-hypothesis chunks (CPU systems): per chunk two parallel passes, RenderWhole
+/// and ScatterWhole, and plain copies. Appends the clouds to `batch` and records the launches in `shape`.
+inline void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const RenderParams& params,
+                                const std::vector<std::int64_t>& hyp_vertices,
+                                const std::vector<std::int64_t>& roi_samples, std::size_t budget,
+                                DeviceArena& arena, LaunchShape& shape, CloudBatch& batch) {
+  using Items = thrust::counting_iterator<std::int64_t>;
+  const int workers = whole_hypothesis_workers();
+  const std::vector<WholeRenderChunk> chunks =
+      plan_whole_render_chunks(hyp_vertices, roi_samples, budget, workers);
+  std::size_t arena_bytes = 0;
+  for (const WholeRenderChunk& ch : chunks) arena_bytes = std::max(arena_bytes, ch.arena_bytes());
+  if (arena.reserve(arena_bytes, budget)) ++shape.device_allocations;
+  std::vector<std::int64_t> visible_host, slot_host;
+  for (const WholeRenderChunk& ch : chunks) {
+    const std::size_t V = std::size_t(ch.max_vertices), R = std::size_t(ch.max_roi), W = std::size_t(workers),
+                      H = std::size_t(ch.count) + 1, P = std::size_t(ch.pixels.elements.back());
+    arena.rewind();  // carve in the order of WholeRenderChunk::bytes
+    PosedPoint* p_cam = arena.take<PosedPoint>(W * V);
+    GridSpan* spans = arena.take<GridSpan>(W * V);
+    DepthTriangle* zbuf = arena.take<DepthTriangle>(W * R);
+    int* next = reinterpret_cast<int*>(arena.take<std::int64_t>(1));
+    std::int64_t *pixels = arena.take<std::int64_t>(H), *visible = arena.take<std::int64_t>(H),
+                 *slot = arena.take<std::int64_t>(H);
+    RenderedSample* samples = arena.take<RenderedSample>(P);
+    float *x = arena.take<float>(P), *y = arena.take<float>(P), *z = arena.take<float>(P);
+    std::uint32_t* rgb = arena.take<std::uint32_t>(P);
+    std::int32_t *pixel = arena.take<std::int32_t>(P), *cloud = arena.take<std::int32_t>(P);
+    copy_to(pixels, ch.pixels.elements);
+    copy_to(next, std::vector<int>{0});
+    thrust::for_each(thrust::device, Items(0), Items(workers),
+                     RenderWhole{args, params, ch.first, ch.count, d_roi + ch.first, pixels, next, p_cam,
+                                 spans, zbuf, std::int64_t(V), std::int64_t(R), samples, visible});
+    // Output slots on the host: the per-hypothesis counts come back anyway to set the batch offsets.
+    visible_host.clear(), slot_host.assign(1, 0);
+    append_to_host(visible_host, visible, std::size_t(ch.count));
+    for (int k = 0; k < ch.count; ++k) slot_host.push_back(slot_host.back() + visible_host[std::size_t(k)]);
+    copy_to(slot, slot_host);
+    thrust::for_each(thrust::device, Items(0), Items(ch.count),
+                     ScatterWhole{ch.first, pixels, visible, slot, samples, x, y, z, rgb, pixel, cloud});
+    const std::int64_t at = std::int64_t(batch.size());
+    for (int k = 1; k <= ch.count; ++k)
+      batch.offsets[std::size_t(ch.first + k)] = at + slot_host[std::size_t(k)];
+    const std::size_t m = std::size_t(slot_host.back());
+    append_to_host(batch.x, x, m), append_to_host(batch.y, y, m), append_to_host(batch.z, z, m);
+    append_to_host(batch.rgb, rgb, m), append_to_host(batch.pixel, pixel, m),
+        append_to_host(batch.cloud, cloud, m);
+    shape.launch("render_hypotheses", 1, workers);
+    shape.launch("scatter", 1, ch.count);
+    ++shape.chunks;
+    shape.peak_chunk_bytes = std::max(shape.peak_chunk_bytes, arena.bytes());
+  }
+}
 
 /// A domain's offsets copied into the arena.
 inline Domain upload_domain(DeviceArena& arena, const HostDomain& d) {
@@ -200,6 +327,15 @@ struct Renderer<System>::Impl {
   mutable TempAllocator temp;
   mutable LaunchShape shape;
 };
+
+/// Device memory a renderer keeps between calls.
+template <class Impl>
+std::size_t workspace_bytes(const Impl& w) {
+  return w.arena.bytes() + w.temp.bytes() +
+         (w.model.capacity() + w.label.capacity() + w.occ_labels.capacity()) * 4 +
+         w.occ_depth.capacity() * 4 + w.T_cam_obj.capacity() * sizeof(Rigid3f) +
+         w.roi.capacity() * sizeof(GridRoi);
+}
 
 template <class System>
 Renderer<System>::Renderer(std::vector<Mesh> models) : impl_(std::make_unique<Impl>()) {
@@ -276,6 +412,12 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
     hyp_triangles[k] = std::int64_t(impl_->host[model[k]].triangles);
     roi_samples[k] = roi[k].size();
   }
+  if constexpr (System::render_whole_hypotheses) {
+    const RenderParams params{camera, s.stride, s.near_m, s.cull_back_faces, occ};
+    render_whole_chunks(args, d_roi, params, hyp_vertices, roi_samples, budget, w.arena, w.shape, batch);
+    w.shape.workspace_bytes = workspace_bytes(w);
+    return batch;
+  }
   const std::vector<RenderChunk> chunks =
       plan_render_chunks(hyp_vertices, hyp_triangles, roi_samples, budget, block);
   std::size_t arena_bytes = 0;
@@ -289,7 +431,7 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
     const std::int64_t num_vertices = vertices.elements.back(), num_pixels = pixels.elements.back();
     const std::size_t V = std::size_t(num_vertices), P = std::size_t(num_pixels);
     arena.rewind();  // carve the chunk's arrays in the order of render_chunk_arena_bytes
-    Vec3f* verts_cam = arena.take<Vec3f>(V);
+    PosedPoint* verts_cam = arena.take<PosedPoint>(V);
     GridSpan* spans = arena.take<GridSpan>(V);
     const Domain d_vertices = upload_domain(arena, vertices), d_triangles = upload_domain(arena, triangles),
                  d_pixels = upload_domain(arena, pixels);
@@ -336,6 +478,7 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
     append_to_host(batch.rgb, rgb, m), append_to_host(batch.pixel, pixel, m),
         append_to_host(batch.cloud, cloud, m);
 
+    ++w.shape.chunks;
     w.shape.launch("transform_vertices", block, vertices.blocks.back());
     w.shape.launch("rasterize", block, triangles.blocks.back());
     w.shape.launch("resolve", block, pixels.blocks.back());
@@ -344,10 +487,7 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
     w.shape.peak_chunk_bytes = std::max(w.shape.peak_chunk_bytes, arena.bytes() + w.temp.bytes());
   }
   allocations += w.temp.allocations;
-  w.shape.workspace_bytes = w.arena.bytes() + w.temp.bytes() +
-                            (w.model.capacity() + w.label.capacity() + w.occ_labels.capacity()) * 4 +
-                            w.occ_depth.capacity() * 4 + w.T_cam_obj.capacity() * sizeof(Rigid3f) +
-                            w.roi.capacity() * sizeof(GridRoi);
+  w.shape.workspace_bytes = workspace_bytes(w);
   return batch;
 }
 

@@ -16,6 +16,8 @@ namespace perch2 {
 
 struct MeshArrays {
   std::vector<Vec3f> vertices;
+  std::vector<float>
+      vertex_xyz;  ///< the vertices as x of every vertex, then y, then z (MeshView::vertex_xyz)
   std::vector<std::int32_t> triangles;
   std::vector<Rgb8> vertex_colors, texture;
   std::vector<Vec2f> corner_uvs;
@@ -29,6 +31,9 @@ struct MeshArrays {
     mesh.validate();
     vertices.reserve(mesh.vertices.size());
     for (const auto& v : mesh.vertices) vertices.push_back({v.x(), v.y(), v.z()});
+    vertex_xyz.resize(3 * vertices.size());
+    for (std::size_t k = 0, n = vertices.size(); k < n; ++k)
+      vertex_xyz[k] = vertices[k].x, vertex_xyz[n + k] = vertices[k].y, vertex_xyz[2 * n + k] = vertices[k].z;
     triangles.reserve(3 * mesh.triangles.size());
     for (const auto& t : mesh.triangles) triangles.insert(triangles.end(), {t[0], t[1], t[2]});
     vertex_colors = std::move(mesh.vertex_colors);
@@ -47,12 +52,12 @@ struct MeshArrays {
 
   /// A view whose pointers address the given (host or device) copies of these arrays (`cl`: of clusters;
   /// null renders without cluster culling, with identical results on well-conditioned meshes).
-  MeshView view(const Vec3f* v, const std::int32_t* t, const Rgb8* vc, const Vec2f* uv, const Rgb8* tex,
-                const TriangleCluster* cl = nullptr) const {
+  MeshView view(const Vec3f* v, const float* xyz, const std::int32_t* t, const Rgb8* vc, const Vec2f* uv,
+                const Rgb8* tex, const TriangleCluster* cl = nullptr) const {
     MeshView m;
     m.clusters = clusters.empty() ? nullptr : cl;
     m.num_clusters = m.clusters ? int(clusters.size()) : 0;
-    m.vertices = v, m.triangles = t;
+    m.vertices = v, m.vertex_xyz = xyz, m.triangles = t;
     m.vertex_colors = vertex_colors.empty() ? nullptr : vc;
     m.corner_uvs = corner_uvs.empty() ? nullptr : uv;
     m.texture = texture.empty() ? nullptr : tex;
@@ -62,8 +67,8 @@ struct MeshArrays {
     return m;
   }
   MeshView host_view() const {
-    return view(vertices.data(), triangles.data(), vertex_colors.data(), corner_uvs.data(), texture.data(),
-                clusters.data());
+    return view(vertices.data(), vertex_xyz.data(), triangles.data(), vertex_colors.data(), corner_uvs.data(),
+                texture.data(), clusters.data());
   }
 
   /// Triangles per cluster: enough to amortise the cone test, few enough for tight cones and spheres.

@@ -21,6 +21,16 @@
 #include "perch2/core/camera.hpp"
 #include "perch2/core/device.hpp"
 
+// Forces inlining of the per-triangle set-up into the triangle loop (GCC stopped inlining it once it grew,
+// costing ~10% of the raster time in a call that returns its result through memory).
+#if defined(__CUDACC__)
+#define PERCH2_HD_FORCE_INLINE __host__ __device__ __forceinline__
+#elif defined(__GNUC__)
+#define PERCH2_HD_FORCE_INLINE inline __attribute__((always_inline))
+#else
+#define PERCH2_HD_FORCE_INLINE inline
+#endif
+
 namespace perch2 {
 
 /// A run of nearby, similarly oriented triangles with a bounding sphere and a cone holding their normals
@@ -50,6 +60,7 @@ PERCH2_HD inline bool cluster_faces_away(const TriangleCluster& c, Vec3f cam_obj
 /// A model as the kernels see it: flat arrays (host or device memory) owned by the backend.
 struct MeshView {
   const Vec3f* vertices = nullptr;          ///< object frame, metres
+  const float* vertex_xyz = nullptr;        ///< the same, as x of every vertex, then y, then z (posing loop)
   const std::int32_t* triangles = nullptr;  ///< 3 vertex indices per triangle
   const Rgb8* vertex_colors = nullptr;      ///< null, or one per vertex
   const Vec2f* corner_uvs = nullptr;        ///< null, or 3 per triangle
@@ -199,15 +210,6 @@ struct StrideGrid {
         height(float(K.grid_height(stride))) {}
 };
 
-PERCH2_HD inline GridSpan grid_span(Vec2f px, const StrideGrid& g) {
-  constexpr float kEps = 1e-3f;  // pixels; bounds are a superset filter, the edge test is exact
-  auto clamp = [](float x, float hi) { return min_f(max_f(x, -1.f), hi); };
-  return {std::int16_t(ceil_int(clamp((px.x - kEps) * g.inv_stride, g.width))),
-          std::int16_t(floor_int(clamp((px.x + kEps) * g.inv_stride, g.width))),
-          std::int16_t(ceil_int(clamp((px.y - kEps) * g.inv_stride, g.height))),
-          std::int16_t(floor_int(clamp((px.y + kEps) * g.inv_stride, g.height)))};
-}
-
 PERCH2_HD inline int min3(int a, int b, int c) {
   return min_int(min_int(a, b), c);
 }
@@ -215,12 +217,64 @@ PERCH2_HD inline int max3(int a, int b, int c) {
   return max_int(max_int(a, b), c);
 }
 
+/// A posed vertex: camera-frame point padded to 16 bytes (the posing loop's four-float stores vectorise, and
+/// a triangle set-up reads each corner from one cache line).
+struct PosedPoint {
+  float x, y, z, pad;
+};
+
+/// A posed model's vertices and their grid spans (meaningful where z >= near).
+struct PosedVertices {
+  const PosedPoint* p_cam;
+  const GridSpan* span;
+  PERCH2_HD Vec3f operator[](int k) const { return {p_cam[k].x, p_cam[k].y, p_cam[k].z}; }
+};
+
+/// Branch-free select: a float comparison in a conditional expression keeps the loop from vectorising
+/// (the comparison may trap, so the compiler will not if-convert it).
+PERCH2_HD inline int select_int(bool c, int a, int b) {
+  const int mask = -int(c);
+  return (a & mask) | (b & ~mask);
+}
+
+/// Poses vertices [begin, end) of a model into the camera frame (p_cam[k]) and computes their grid spans.
+/// Inputs are copied to locals first (the compiler would reload the pose and intrinsics after every store
+/// otherwise); the body is branch-free and reads structure-of-arrays input, so compilers vectorise it
+/// (SSE2: four vertices per instruction, with divps for the one division per vertex).
+PERCH2_HD inline void pose_vertices(const MeshView& m, const Rigid3f& T_cam_obj, const Intrinsics& K,
+                                    int stride, float near_m, int begin, int end,
+                                    PosedPoint* __restrict__ p_cam, GridSpan* __restrict__ span) {
+  const float* __restrict__ vx = m.vertex_xyz;
+  const float* __restrict__ vy = m.vertex_xyz + m.num_vertices;
+  const float* __restrict__ vz = m.vertex_xyz + 2 * m.num_vertices;
+  const Rigid3f T = T_cam_obj;
+  const Intrinsics K_local = K;
+  const StrideGrid g(K, stride);
+  constexpr float kEps = 1e-3f;  // pixels; spans are a superset filter, the edge test is exact
+  auto clamp = [](float x, float hi) { return min_f(max_f(x, -1.f), hi); };
+  for (int k = begin; k < end; ++k) {
+    const float X = vx[k], Y = vy[k], Z = vz[k];
+    const float x = T.R.m[0] * X + T.R.m[1] * Y + T.R.m[2] * Z + T.t.x;
+    const float y = T.R.m[3] * X + T.R.m[4] * Y + T.R.m[5] * Z + T.t.y;
+    const float z = T.R.m[6] * X + T.R.m[7] * Y + T.R.m[8] * Z + T.t.z;
+    p_cam[k].x = x, p_cam[k].y = y, p_cam[k].z = z, p_cam[k].pad = 0.f;
+    // Behind the near plane the span is computed from garbage (clamped, never UB) and marked.
+    const float inv_z = 1.f / z;
+    const float u = K_local.fx * x * inv_z + K_local.cx, v = K_local.fy * y * inv_z + K_local.cy;
+    const int i_lo = ceil_int(clamp((u - kEps) * g.inv_stride, g.width));
+    span[k].i_lo = std::int16_t(select_int(z >= near_m, i_lo, kBehindNear));
+    span[k].i_hi = std::int16_t(floor_int(clamp((u + kEps) * g.inv_stride, g.width)));
+    span[k].j_lo = std::int16_t(ceil_int(clamp((v - kEps) * g.inv_stride, g.height)));
+    span[k].j_hi = std::int16_t(floor_int(clamp((v + kEps) * g.inv_stride, g.height)));
+  }
+}
+
 /// Returns false if the triangle covers no sample of `roi` (degenerate, culled, behind the near plane).
 /// `sa, sb, sc` are the corners' grid spans (used when all corners are in front of the near plane).
-PERCH2_HD inline bool setup_triangle(const Vec3f* p_cam, const std::int32_t* f, const GridSpan& sa,
-                                     const GridSpan& sb, const GridSpan& sc, const Intrinsics& K, int stride,
-                                     float near_m, const GridRoi& roi, bool cull_back_faces,
-                                     TriangleRaster& t) {
+PERCH2_HD_FORCE_INLINE bool setup_triangle(const PosedVertices& p_cam, const std::int32_t* f,
+                                           const GridSpan& sa, const GridSpan& sb, const GridSpan& sc,
+                                           const Intrinsics& K, int stride, float near_m, const GridRoi& roi,
+                                           bool cull_back_faces, TriangleRaster& t) {
   // Cheapest test first: at stride >= 2 most triangles of a model contain no grid sample at all.
   const int i_lo = min3(sa.i_lo, sb.i_lo, sc.i_lo);
   if (i_lo != kBehindNear) {
@@ -307,37 +361,6 @@ PERCH2_HD inline Rgb8 shade(const MeshView& m, int tri, Vec3f a, Vec3f b, Vec3f 
   return m.base_color;
 }
 
-/// A posed model's vertices: camera frame, and their grid spans (meaningful where z >= near).
-struct PosedVertices {
-  const Vec3f* p_cam;
-  const GridSpan* span;
-};
-
-/// Poses vertices [begin, end) of a model into the camera frame and computes their grid spans. Inputs are
-/// copied to locals first: the float stores to p_cam could alias them otherwise, and the compiler would
-/// reload the pose and intrinsics for every vertex.
-PERCH2_HD inline void pose_vertices(const MeshView& m, const Rigid3f& T_cam_obj, const Intrinsics& K,
-                                    int stride, float near_m, int begin, int end, Vec3f* p_cam,
-                                    GridSpan* span) {
-  const Vec3f* const vertices = m.vertices;
-  const Rigid3f T = T_cam_obj;
-  const Intrinsics K_local = K;
-  const StrideGrid grid(K, stride);
-  for (int k = begin; k < end; ++k) {
-    const Vec3f v = vertices[k];
-    // Component-wise stores: a Vec3f temporary went through the stack and stalled store forwarding.
-    const float x = T.R.m[0] * v.x + T.R.m[1] * v.y + T.R.m[2] * v.z + T.t.x;
-    const float y = T.R.m[3] * v.x + T.R.m[4] * v.y + T.R.m[5] * v.z + T.t.y;
-    const float z = T.R.m[6] * v.x + T.R.m[7] * v.y + T.R.m[8] * v.z + T.t.z;
-    p_cam[k].x = x, p_cam[k].y = y, p_cam[k].z = z;
-    // Branch-free: behind the near plane the span is computed from garbage (clamped, never UB) and marked.
-    const float inv_z = 1.f / z;  // one division; spans are a superset filter with a 1e-3 px margin
-    GridSpan s = grid_span({K_local.fx * x * inv_z + K_local.cx, K_local.fy * y * inv_z + K_local.cy}, grid);
-    s.i_lo = z >= near_m ? s.i_lo : kBehindNear;
-    span[k] = s;
-  }
-}
-
 /// Rasterise triangles [begin, end) of a posed model into an ROI z-buffer: calls plot(roi_index,
 /// packed_word) for every covered sample. The backend's plot does the z-test (plain min in the reference, a
 /// 64-bit atomic min in the Thrust backend). Inputs are copied to locals so that plot's stores (an atomic is
@@ -352,8 +375,8 @@ PERCH2_HD void rasterize_triangle_run(const MeshView& m, PosedVertices v, int be
   for (int tri = begin; tri < end; ++tri) {
     const std::int32_t* f = triangles + 3 * tri;
     TriangleRaster t;
-    if (!setup_triangle(v.p_cam, f, v.span[f[0]], v.span[f[1]], v.span[f[2]], K_local, stride, near_m,
-                        roi_local, cull_back_faces, t))
+    if (!setup_triangle(v, f, v.span[f[0]], v.span[f[1]], v.span[f[2]], K_local, stride, near_m, roi_local,
+                        cull_back_faces, t))
       continue;
     for (int j = t.cover.j0; j < t.cover.j0 + t.cover.height; ++j)
       for (int i = t.cover.i0; i < t.cover.i0 + t.cover.width; ++i) {
@@ -425,7 +448,7 @@ struct RenderedSample {
 
 /// Resolve pass for one z-buffer word of grid sample (i, j): decode the winning triangle, drop the sample if
 /// an observed occluder hides it, else shade it. Returns false for empty or occluded samples.
-PERCH2_HD inline bool resolve_sample(const MeshView& m, const Vec3f* verts_cam, DepthTriangle word,
+PERCH2_HD inline bool resolve_sample(const MeshView& m, const PosedVertices& verts_cam, DepthTriangle word,
                                      const Intrinsics& K, int stride, int i, int j, const OccluderView& occ,
                                      std::int32_t hypothesis_label, RenderedSample& out) {
   if (word == kEmptyPixel) return false;
@@ -441,6 +464,46 @@ PERCH2_HD inline bool resolve_sample(const MeshView& m, const Vec3f* verts_cam, 
   const std::int32_t* f = m.triangles + 3 * tri;
   out.rgb = pack_rgb(shade(m, tri, verts_cam[f[0]], verts_cam[f[1]], verts_cam[f[2]], out.p_cam));
   return true;
+}
+
+/// What a render needs besides the model and the pose (device-callable copy of RenderSettings' fields).
+struct RenderParams {
+  Intrinsics K;
+  int stride;
+  float near_m;
+  bool cull_back_faces;
+  OccluderView occ;
+};
+
+/// Scratch for rendering one hypothesis in one thread: posed vertices and spans (room for the model's
+/// vertices) and a z-buffer (room for the ROI).
+struct HypothesisScratch {
+  PosedPoint* p_cam;
+  GridSpan* span;
+  DepthTriangle* zbuf;
+};
+
+/// Renders one hypothesis start to end in one thread: poses the model, rasterises it into the ROI z-buffer
+/// and resolves the visible samples, in raster order of the stride grid, into out (room for roi.size()).
+/// Returns their count. The reference backend and the Thrust backend on CPU systems render this way (each
+/// hypothesis' working set stays in cache); on GPUs the Thrust backend runs the same steps as passes.
+PERCH2_HD inline int render_hypothesis(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label,
+                                       const GridRoi& roi, const RenderParams& p, const HypothesisScratch& s,
+                                       RenderedSample* out) {
+  if (roi.size() == 0) return 0;
+  for (int k = 0; k < roi.size(); ++k) s.zbuf[k] = kEmptyPixel;
+  pose_vertices(m, T_cam_obj, p.K, p.stride, p.near_m, 0, m.num_vertices, s.p_cam, s.span);
+  const PosedVertices posed{s.p_cam, s.span};
+  DepthTriangle* const zbuf = s.zbuf;
+  rasterize_triangles(m, posed, 0, m.num_triangles, T_cam_obj, p.K, p.stride, p.near_m, roi,
+                      p.cull_back_faces,
+                      [zbuf](int idx, DepthTriangle w) { zbuf[idx] = zbuf[idx] < w ? zbuf[idx] : w; });
+  int n = 0;
+  for (int j = 0; j < roi.height; ++j)
+    for (int i = 0; i < roi.width; ++i)
+      n += resolve_sample(m, posed, zbuf[j * roi.width + i], p.K, p.stride, roi.i0 + i, roi.j0 + j, p.occ,
+                          label, out[n]);
+  return n;
 }
 
 }  // namespace perch2

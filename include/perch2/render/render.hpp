@@ -24,9 +24,10 @@ struct RenderSettings {
   float near_m = 0.01f;              ///< near clipping plane, metres; nearer surface is not rendered
   bool cull_back_faces = true;       ///< skip triangles facing away (needs consistent outward winding)
   float occlusion_margin_m = 0.01f;  ///< an observed depth nearer by more than this occludes, metres
-  /// Working memory of one chunk of hypotheses (z-buffers, posed vertices, resolved samples), bytes.
-  /// 0: the backend's default: 4 MiB on CPU systems (chunks that stay in cache run ~20% faster than 64 MiB
-  /// ones), 256 MiB on CUDA (enough hypotheses per chunk to fill a GPU).
+  /// Working memory of one chunk of hypotheses in the Thrust backend (z-buffers, posed vertices, resolved
+  /// samples, outputs), bytes. 0: the backend's default: 64 MiB on CPU systems (there each thread renders
+  /// whole hypotheses in its own cache-sized scratch; the chunk holds their outputs, and fewer chunks mean
+  /// fewer parallel regions), 256 MiB on CUDA (enough hypotheses per chunk to fill a GPU).
   std::size_t memory_budget_bytes = 0;
 };
 

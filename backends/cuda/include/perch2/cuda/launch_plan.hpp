@@ -41,7 +41,7 @@ inline std::size_t render_scan_temp_bytes(std::int64_t pixels) {
 inline std::size_t render_chunk_arena_bytes(std::int64_t vertices, int count, std::int64_t pixels) {
   const auto a = arena_aligned;
   const std::size_t V = std::size_t(vertices), H = std::size_t(count) + 1, P = std::size_t(pixels);
-  return a(V * sizeof(Vec3f)) + a(V * sizeof(GridSpan)) + 6 * a(H * 8) + a(P * sizeof(DepthTriangle)) +
+  return a(V * sizeof(PosedPoint)) + a(V * sizeof(GridSpan)) + 6 * a(H * 8) + a(P * sizeof(DepthTriangle)) +
          a(P * sizeof(RenderedSample)) + a(P * 4) + a((P + 1) * 8) + 3 * a(P * sizeof(float)) +
          a(P * sizeof(std::uint32_t)) + 2 * a(P * sizeof(std::int32_t)) + a(H * 8);
 }
@@ -79,6 +79,51 @@ inline std::vector<RenderChunk> plan_render_chunks(const std::vector<std::int64_
       ch.triangles.add(triangles[h]);
       ch.pixels.add(roi_samples[h]);
       ++ch.count;
+    }
+    first += ch.count;
+    chunks.push_back(std::move(ch));
+  }
+  return chunks;
+}
+
+/// A chunk rendered a whole hypothesis per work item (System::render_whole_hypotheses): hypotheses
+/// [first, first + count), their ROI samples, and the scratch sizes of each of `workers` work items.
+struct WholeRenderChunk {
+  int first = 0, count = 0, workers = 1;
+  HostDomain pixels;
+  std::int64_t max_vertices = 0, max_roi = 0;  ///< scratch per worker: posed vertices, z-buffer
+  std::size_t arena_bytes() const {
+    return bytes(workers, max_vertices, max_roi, count, pixels.elements.back());
+  }
+  /// Carved in this order: worker scratch; counter; ROI offsets, visible counts, output slots; resolved
+  /// samples; compacted outputs (x, y, z, rgb, pixel, cloud).
+  static std::size_t bytes(int workers, std::int64_t max_vertices, std::int64_t max_roi, int count,
+                           std::int64_t pixels) {
+    const auto a = arena_aligned;
+    const std::size_t V = std::size_t(max_vertices), R = std::size_t(max_roi), H = std::size_t(count) + 1,
+                      P = std::size_t(pixels), W = std::size_t(workers);
+    return a(W * V * sizeof(PosedPoint)) + a(W * V * sizeof(GridSpan)) + a(W * R * sizeof(DepthTriangle)) +
+           a(8) + 3 * a(H * 8) + a(P * sizeof(RenderedSample)) + 6 * a(P * 4);
+  }
+};
+
+/// Splits a batch into whole-hypothesis chunks, each grown while its arena fits budget_bytes (a chunk
+/// always holds at least one hypothesis). Per hypothesis: its model's vertex count and its ROI samples.
+inline std::vector<WholeRenderChunk> plan_whole_render_chunks(const std::vector<std::int64_t>& vertices,
+                                                              const std::vector<std::int64_t>& roi_samples,
+                                                              std::size_t budget_bytes, int workers) {
+  const int n = int(roi_samples.size());
+  std::vector<WholeRenderChunk> chunks;
+  for (int first = 0; first < n;) {
+    WholeRenderChunk ch;
+    ch.first = first, ch.workers = workers;
+    for (int h = first; h < n; ++h) {
+      const std::int64_t V = std::max(ch.max_vertices, vertices[h]), R = std::max(ch.max_roi, roi_samples[h]);
+      if (ch.count > 0 && WholeRenderChunk::bytes(workers, V, R, ch.count + 1,
+                                                  ch.pixels.elements.back() + roi_samples[h]) > budget_bytes)
+        break;
+      ch.pixels.add(roi_samples[h]);
+      ++ch.count, ch.max_vertices = V, ch.max_roi = R;
     }
     first += ch.count;
     chunks.push_back(std::move(ch));

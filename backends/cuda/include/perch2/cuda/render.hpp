@@ -34,5 +34,6 @@ class PERCH2_API Renderer {
 
 extern template class Renderer<CudaSystem>;
 extern template class Renderer<OmpSystem>;
+extern template class Renderer<OmpPassesSystem>;
 
 }  // namespace perch2::thrust_backend

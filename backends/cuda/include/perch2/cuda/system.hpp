@@ -30,6 +30,9 @@ struct PERCH2_API CudaSystem {
   static constexpr std::size_t default_chunk_bytes = std::size_t(256) << 20;  ///< fills a GPU
   /// Renderer: vertices, triangles or ROI samples per work item (one per thread, the classic mapping).
   static constexpr int render_elements_per_item = 1;
+  /// Renderer: false: one pass per stage per chunk (pose, rasterise, resolve, compact), each over many small
+  /// work items; true: one pass per chunk whose work items render whole hypotheses (see OmpSystem).
+  static constexpr bool render_whole_hypotheses = false;
   /// Registration: source points per work item (each writes a 124-byte partial sum of the normal
   /// equations; 8 gives ~90k threads for 2,400 hypotheses x 300 points and ~40 partial sums per hypothesis).
   static constexpr int registration_points_per_item = 8;
@@ -42,11 +45,25 @@ struct PERCH2_API CudaSystem {
 };
 struct PERCH2_API OmpSystem {
   static constexpr const char* name = "thrust_omp";
-  static constexpr std::size_t default_chunk_bytes = std::size_t(4) << 20;  ///< stays in cache
-  static constexpr int render_elements_per_item = 64;      ///< ~10^4 items per chunk: enough for any CPU
+  /// Per chunk: the outputs only (each thread's working set of one hypothesis stays in cache whatever the
+  /// chunk size), so chunks are large and parallel regions few: ~1 chunk for 2,000 hypotheses at stride 4.
+  static constexpr std::size_t default_chunk_bytes = std::size_t(64) << 20;
+  static constexpr int render_elements_per_item = 64;  ///< when rendering in passes (OmpPassesSystem)
+  /// A CPU renders each hypothesis start to end in one thread, hypotheses pulled from a shared counter: two
+  /// parallel regions per chunk instead of ~9, and no thread waits at a barrier for a descheduled one
+  /// holding a fixed share of the work (with libgomp's default spinning waits, the pass structure ran 6x
+  /// slower than the reference backend beside one busy process).
+  static constexpr bool render_whole_hypotheses = true;
   static constexpr int registration_points_per_item = 64;  ///< as measured in the README's tables
   static constexpr bool bitwise_reproducible = true;
   static constexpr bool pinned_host_buffers = false;  ///< host memory is device memory: copy directly
+};
+/// The CUDA renderer's pass structure run on OpenMP: not faster, but it runs the GPU path's passes (the
+/// same functors and launch plan) against the reference on every CI run.
+struct PERCH2_API OmpPassesSystem : OmpSystem {
+  static constexpr const char* name = "thrust_omp_passes";
+  static constexpr std::size_t default_chunk_bytes = std::size_t(4) << 20;  ///< stays in cache
+  static constexpr bool render_whole_hypotheses = false;
 };
 
 /// What the last call of a stage object launched and allocated: lets a GPU user see the launch shapes and
@@ -61,6 +78,7 @@ struct LaunchShape {
     std::int64_t max_items = 0;  ///< work items of the largest launch (the parallelism a GPU sees)
   };
   std::vector<Pass> passes;
+  std::int64_t chunks = 0;  ///< chunks the batch was split into (renderer)
   /// Device (and pinned host) allocations the call made (0 once workspaces are warm).
   std::int64_t device_allocations = 0;
   std::size_t peak_chunk_bytes = 0;  ///< largest chunk working memory (renderer: within memory_budget_bytes)
