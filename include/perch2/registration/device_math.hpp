@@ -102,8 +102,8 @@ PERCH2_HD inline Sym3 plane_covariance(Vec3f n, float eps) {
 }
 
 /// Unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (cyclic Jacobi rotations), or the
-/// zero vector if the matrix is zero or not finite. `second_smallest` receives the middle eigenvalue.
-PERCH2_HD inline Vec3f smallest_eigenvector(Sym3 s, float* middle_eigenvalue = nullptr) {
+/// zero vector if the matrix is zero or not finite. `middle_eigenvalue` receives the middle eigenvalue.
+PERCH2_HD inline Vec3f smallest_eigenvector_jacobi(Sym3 s, float* middle_eigenvalue = nullptr) {
   float a[3][3] = {{s.xx, s.xy, s.xz}, {s.xy, s.yy, s.yz}, {s.xz, s.yz, s.zz}};
   float v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
   const float scale = fabsf(s.xx) + fabsf(s.yy) + fabsf(s.zz);
@@ -147,6 +147,36 @@ PERCH2_HD inline Vec3f smallest_eigenvector(Sym3 s, float* middle_eigenvalue = n
   Vec3f n{v[0][lo], v[1][lo], v[2][lo]};
   const float len = sqrtf(dot(n, n));
   return len > 0.f ? (1.f / len) * n : Vec3f{0.f, 0.f, 0.f};
+}
+
+/// Unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix, or the zero vector if the matrix
+/// is zero or not finite. Closed form (about 5x cheaper than Jacobi rotations): the eigenvalue from the
+/// trigonometric solution of the characteristic cubic of the matrix shifted by its mean eigenvalue and
+/// scaled to unit trace, the vector as the longest cross product of two rows of A - lambda I. That is
+/// accurate to ~1e-7 / g radians, g the gap to the middle eigenvalue relative to the trace; when
+/// g < ~1e-3 (no clear smallest direction) the Jacobi rotations decide instead.
+PERCH2_HD inline Vec3f smallest_eigenvector(Sym3 s) {
+  const float scale = fabsf(s.xx) + fabsf(s.yy) + fabsf(s.zz);
+  if (!(scale > 0.f) || !(scale < 3.0e38f)) return {0.f, 0.f, 0.f};
+  const float inv = 1.f / scale, mean = (s.xx + s.yy + s.zz) * (1.f / 3.f);
+  const float a = (s.xx - mean) * inv, b = (s.yy - mean) * inv, c = (s.zz - mean) * inv;
+  const float d = s.xy * inv, e = s.yz * inv, f = s.xz * inv;
+  const float p2 = (a * a + b * b + c * c + 2.f * (d * d + e * e + f * f)) * (1.f / 6.f);
+  if (p2 > 1e-12f) {
+    const float p = sqrtf(p2);
+    const float det = a * (b * c - e * e) - d * (d * c - e * f) + f * (d * e - b * f);
+    const float r = min_f(max_f(det / (2.f * p2 * p), -1.f), 1.f);
+    const float lambda = 2.f * p * cosf(acosf(r) * (1.f / 3.f) + 2.09439510f);  // the smallest root
+    const Vec3f r0{a - lambda, d, f}, r1{d, b - lambda, e}, r2{f, e, c - lambda};
+    Vec3f best = cross(r0, r1);
+    float n2 = dot(best, best);
+    const Vec3f c02 = cross(r0, r2), c12 = cross(r1, r2);
+    if (dot(c02, c02) > n2) best = c02, n2 = dot(c02, c02);
+    if (dot(c12, c12) > n2) best = c12, n2 = dot(c12, c12);
+    // sqrt(n2) ~ (middle - smallest) * (largest - smallest) / trace^2.
+    if (n2 > 1e-6f && n2 < 3.0e38f) return (1.f / sqrtf(n2)) * best;
+  }
+  return smallest_eigenvector_jacobi(s);
 }
 
 /// Solves A x = b for a symmetric positive-definite N x N matrix (row-major, only the lower triangle read)
