@@ -281,14 +281,41 @@ struct InitState {
   }
 };
 
-/// GICP weight W = (C_t + R C_s R^T)^-1 with plane covariances; identity for ICP.
-PERCH2_HD inline reg::Sym3 correspondence_weight(const Params& P, Vec3f nt, Vec3f m) {
-  if (!P.gicp) return {1, 0, 0, 1, 0, 1};
-  const reg::Sym3 M = reg::sym3_add(reg::plane_covariance(nt, P.eps), reg::plane_covariance(m, P.eps));
-  reg::Sym3 W;
-  if (!reg::sym3_inverse(M, W)) return {1, 0, 0, 1, 0, 1};
-  return W;
-}
+/// The correspondence weight W = (C_t + R C_s R^T)^-1 = (2 I - s (u u^T + v v^T))^-1 of plane covariances
+/// (s = 1 - epsilon; u the target normal, v the rotated source normal, each unit or zero for "no normal");
+/// the identity for ICP. By the Woodbury identity W = (I + U G^-1 U^T) / 2 with U = [u v] and the 2x2
+/// G = (2 / s) I - U^T U, i.e. W = (I + a_uu u u^T + a_vv v v^T + a_uv (u v^T + v u^T)) / 2: no 3x3
+/// inverse, and d^T W d needs only u.d and v.d.
+struct Weight {
+  Vec3f u{0.f, 0.f, 0.f}, v{0.f, 0.f, 0.f};
+  float a_uu = 0.f, a_vv = 0.f, a_uv = 0.f;
+  float half = 1.f;  ///< 1/2 for GICP; 1 with a_* = 0 gives ICP's identity
+
+  PERCH2_HD Weight(const Params& P, Vec3f nt, Vec3f m) {
+    if (!P.gicp) return;
+    const float two_over_s = 2.f / (1.f - P.eps);
+    const float g_uu = two_over_s - dot(nt, nt), g_vv = two_over_s - dot(m, m), c = dot(nt, m);
+    // det > 0 for unit or zero normals (g_uu > 1 >= |u|^2, c^2 <= |u|^2 |v|^2); NaN normals: identity.
+    const float det = g_uu * g_vv - c * c;
+    if (!(det > 0.f)) return;
+    const float inv = 1.f / det;
+    u = nt, v = m, a_uu = g_vv * inv, a_vv = g_uu * inv, a_uv = c * inv, half = 0.5f;
+  }
+
+  /// d^T W d.
+  PERCH2_HD float quadratic(Vec3f d) const {
+    const float ud = dot(u, d), vd = dot(v, d);
+    return half * (dot(d, d) + a_uu * ud * ud + a_vv * vd * vd + 2.f * a_uv * ud * vd);
+  }
+
+  /// W itself.
+  PERCH2_HD reg::Sym3 matrix() const {
+    const Vec3f au = a_uu * u + a_uv * v, av = a_vv * v + a_uv * u;  // W = half (I + au u^T + av v^T)
+    return {half * (1.f + au.x * u.x + av.x * v.x), half * (au.x * u.y + av.x * v.y),
+            half * (au.x * u.z + av.x * v.z),       half * (1.f + au.y * u.y + av.y * v.y),
+            half * (au.y * u.z + av.y * v.z),       half * (1.f + au.z * u.z + av.z * v.z)};
+  }
+};
 
 /// Adds one correspondence's J^T W J, J^T W d and d^T W d to `a`, with J = [S, -I], S = [r]x, r = p - c.
 /// Written out block by block (H_ww = S^T W S, H_wv = -S^T W, H_vv = W; g_w = S^T W d, g_v = -W d) since
@@ -352,8 +379,7 @@ struct LinearizeBlock {
         const Vec3f d = target_points[jo] - p;
         // Weights frozen at the accepted linearisation: the cost the step minimised.
         const Vec3f m_acc = P.gicp ? st.T_acc.R * normals[i] : Vec3f{0.f, 0.f, 0.f};
-        const reg::Sym3 W = correspondence_weight(P, P.gicp ? target_normals[jo] : Vec3f{0, 0, 0}, m_acc);
-        a.cost_old += dot(d, reg::sym3_mul(W, d));
+        a.cost_old += Weight(P, P.gicp ? target_normals[jo] : Vec3f{0, 0, 0}, m_acc).quadratic(d);
         radius = min_f(radius, sqrtf(knn_sq_distance(target_points[jo], p)) * (1.f + 1e-5f));
       }
       std::int32_t j;
@@ -362,7 +388,7 @@ struct LinearizeBlock {
       corr_new[i] = found ? j : -1;
       if (found) {
         const Vec3f d = target_points[j] - p;
-        const reg::Sym3 W = correspondence_weight(P, P.gicp ? target_normals[j] : Vec3f{0, 0, 0}, m);
+        const reg::Sym3 W = Weight(P, P.gicp ? target_normals[j] : Vec3f{0, 0, 0}, m).matrix();
         accumulate_normal_equations(a, W, p - c, d);
         a.sq += dot(d, d);
         ++a.inliers;

@@ -1,5 +1,5 @@
 // Device-callable math of the registration stage: SO(3) exponential, rigid-transform composition, symmetric
-// 3x3 helpers (inverse, smallest eigenvector by Jacobi rotations, Segal's plane covariance) and a small
+// 3x3 helpers (smallest eigenvector in closed form or by Jacobi rotations) and a small
 // dense Cholesky (LDL^T) solve for the per-hypothesis 6x6 / 3x3 normal equations.
 // Everything is PERCH2_HD, float, without std containers or exceptions, so Thrust functors can call it.
 #pragma once
@@ -71,34 +71,9 @@ PERCH2_HD inline Sym3 sym3_add(Sym3 a, Sym3 b) {
   return {a.xx + b.xx, a.xy + b.xy, a.xz + b.xz, a.yy + b.yy, a.yz + b.yz, a.zz + b.zz};
 }
 
-/// Inverse of a symmetric 3x3 matrix by the adjugate; false if |det| is not positive.
-PERCH2_HD inline bool sym3_inverse(Sym3 a, Sym3& out) {
-  const float c00 = a.yy * a.zz - a.yz * a.yz;
-  const float c01 = a.xz * a.yz - a.xy * a.zz;
-  const float c02 = a.xy * a.yz - a.xz * a.yy;
-  const float det = a.xx * c00 + a.xy * c01 + a.xz * c02;
-  if (!(fabsf(det) > 0.f)) return false;
-  const float inv = 1.f / det;
-  out.xx = c00 * inv;
-  out.xy = c01 * inv;
-  out.xz = c02 * inv;
-  out.yy = (a.xx * a.zz - a.xz * a.xz) * inv;
-  out.yz = (a.xy * a.xz - a.xx * a.yz) * inv;
-  out.zz = (a.xx * a.yy - a.xy * a.xy) * inv;
-  return true;
-}
-
 PERCH2_HD inline Vec3f sym3_mul(Sym3 a, Vec3f v) {
   return {a.xx * v.x + a.xy * v.y + a.xz * v.z, a.xy * v.x + a.yy * v.y + a.yz * v.z,
           a.xz * v.x + a.yz * v.y + a.zz * v.z};
-}
-
-/// Segal's plane-like covariance with unit in-plane variance: C = I - (1 - eps) n n^T (n unit, or zero for
-/// "no normal", which gives the identity).
-PERCH2_HD inline Sym3 plane_covariance(Vec3f n, float eps) {
-  const float s = 1.f - eps;
-  return {1.f - s * n.x * n.x, -s * n.x * n.y, -s * n.x * n.z,
-          1.f - s * n.y * n.y, -s * n.y * n.z, 1.f - s * n.z * n.z};
 }
 
 /// Unit eigenvector of the smallest eigenvalue of a symmetric 3x3 matrix (cyclic Jacobi rotations), or the
