@@ -52,6 +52,21 @@
 #include <small_gicp/util/normal_estimation_omp.hpp>
 #endif
 
+#ifdef PERCH2_HAVE_SMALL_GICP
+namespace {
+/// small_gicp's reduction, counting its correspondence passes (linearisations) on the calling thread:
+/// RegistrationResult::iterations is the last iteration's 0-based index, one less than the passes.
+struct CountingReduction : small_gicp::SerialReduction {
+  static inline thread_local int passes = 0;
+  template <class... A>
+  auto linearize(A&&... a) const {
+    ++passes;
+    return small_gicp::SerialReduction::linearize(std::forward<A>(a)...);
+  }
+};
+}  // namespace
+#endif
+
 #ifdef PERCH2_HAVE_PCL
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
@@ -292,7 +307,7 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
           const auto target = to_cloud(p.target, 0);  // target structures once, as perch2 does
           const small_gicp::KdTree<PointCloud> tree(target, small_gicp::KdTreeBuilderOMP(threads));
           small_gicp::estimate_covariances_omp(*target, tree, gs.k_neighbors, threads);
-          small_gicp::Registration<small_gicp::GICPFactor, small_gicp::SerialReduction> reg;
+          small_gicp::Registration<small_gicp::GICPFactor, CountingReduction> reg;
           reg.rejector.max_dist_sq =
               double(gs.max_correspondence_distance_m) * gs.max_correspondence_distance_m;
           reg.criteria.translation_eps = gs.translation_epsilon_m;
@@ -303,10 +318,11 @@ int run_method(const std::string& method, int num_sources, int runs, const std::
             const auto source = to_cloud(p.sources, std::size_t(h));
             const small_gicp::KdTree<PointCloud> source_tree(source);
             small_gicp::estimate_covariances(*source, source_tree, gs.k_neighbors);
+            CountingReduction::passes = 0;
             const auto r = reg.align(*target, *source, tree);
             Tout[std::size_t(h)] = Pose(r.T_target_source.cast<float>().matrix());
             cout[std::size_t(h)] = r.converged ? 1 : 0;
-            passes[std::size_t(h)] = int(r.iterations);
+            passes[std::size_t(h)] = CountingReduction::passes;
           }
         },
         T, conv);

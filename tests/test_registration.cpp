@@ -158,6 +158,28 @@ TEST_CASE("registration device math: so3_exp, LDL^T solve, smallest eigenvector"
     // The smallest eigenvalue is separated by 1e-3 from the next: the normal is accurate to ~1e-4.
     CHECK(std::abs(Eigen::Vector3f(n.x, n.y, n.z).dot(Q.col(0))) == doctest::Approx(1.f).epsilon(1e-4));
   }
+  // Closed form against Jacobi rotations and Eigen (double) over spreads from planes (rendered patches:
+  // smallest eigenvalue 1e-4..1e-9 of the others) to a smallest pair 1e-5 apart relative to the trace,
+  // where the closed form hands over to Jacobi: then any direction orthogonal to the largest axis is right.
+  for (int t = 0; t < 400; ++t) {
+    const Eigen::Matrix3d Q =
+        Eigen::Quaterniond{g(rng), g(rng), g(rng), g(rng)}.normalized().toRotationMatrix();
+    const double mid = t % 4 == 3 ? 1e-5 * (1 + std::abs(g(rng))) : 0.05 + std::abs(g(rng));
+    const double small = t % 4 == 3 ? 0.0 : std::pow(10.0, -4 - t % 6);
+    const Eigen::Matrix3d C = 1e-4 * Q * Eigen::Vector3d(small, mid, 1.0).asDiagonal() * Q.transpose();
+    const reg::Sym3 S{float(C(0, 0)), float(C(0, 1)), float(C(0, 2)),
+                      float(C(1, 1)), float(C(1, 2)), float(C(2, 2))};
+    const Vec3f n = reg::smallest_eigenvector(S), nj = reg::smallest_eigenvector_jacobi(S);
+    const Eigen::Vector3d ne(n.x, n.y, n.z), nje(nj.x, nj.y, nj.z);
+    CHECK(ne.norm() == doctest::Approx(1.0).epsilon(1e-5));
+    if (t % 4 == 3) {  // degenerate pair: both methods give a unit vector orthogonal to the largest axis
+      CHECK(std::abs(ne.dot(Q.col(2))) < 1e-3);
+      CHECK(std::abs(nje.dot(Q.col(2))) < 1e-3);
+    } else {  // float entries: ~1e-7 relative, over a gap of >= 0.05 of the trace
+      CHECK(std::abs(ne.dot(Q.col(0))) == doctest::Approx(1.0).epsilon(1e-5));
+      CHECK(std::abs(ne.dot(nje)) == doctest::Approx(1.0).epsilon(1e-5));
+    }
+  }
   // Singular or empty input: a defined "no normal" / failed solve, never NaN.
   const Vec3f z = reg::smallest_eigenvector({0, 0, 0, 0, 0, 0});
   CHECK((z.x == 0 && z.y == 0 && z.z == 0));

@@ -227,12 +227,22 @@ Output register_one(const Indexed& target, const std::vector<Vec3d>* target_norm
     for (std::size_t i = 0; i < n; ++i) {
       const Vec3d p = R_cand * s[i] + t_cand;
       const float qf[3] = {float(p.x()), float(p.y()), float(p.z())};
+      // Bounded by the correspondence distance (float slack far above the rounding of d2f): a nearest point
+      // outside the bound fails the double-precision test below anyway. The accepted pose's correspondence
+      // bounds it further (the nearest point is at most that far; the margin covers float rounding).
+      float bound = search_bound;
+      if (have_acc && corr_acc[i] >= 0) {
+        const Vec3d d = target.point(std::size_t(corr_acc[i])) - p;
+        cost_old += d.dot(weight(corr_acc[i], i, R_acc) * d);  // W frozen at the accepted linearisation
+        const float* t = &target.xyz[3 * std::size_t(corr_acc[i])];
+        const float dx = t[0] - qf[0], dy = t[1] - qf[1], dz = t[2] - qf[2];
+        bound = std::min(bound,
+                         (dx * dx + dy * dy + dz * dz) * (1.f + 1e-5f) + std::numeric_limits<float>::min());
+      }
       std::size_t j = 0;
       float d2f = 0;
       corr_new[i] = -1;
-      // Bounded by the correspondence distance (float slack far above the rounding of d2f): a nearest point
-      // outside the bound fails the double-precision test below anyway.
-      if (target.nearest_within(qf, search_bound, j, d2f)) {
+      if (target.nearest_within(qf, bound, j, d2f)) {
         const Vec3d d = target.point(j) - p;
         if (d.squaredNorm() <= P.max_d2) {
           corr_new[i] = std::int64_t(j);
@@ -245,10 +255,6 @@ Output register_one(const Indexed& target, const std::vector<Vec3d>* target_norm
           sq += d.squaredNorm();
           ++inl;
         }
-      }
-      if (have_acc && corr_acc[i] >= 0) {
-        const Vec3d d = target.point(std::size_t(corr_acc[i])) - p;
-        cost_old += d.dot(weight(corr_acc[i], i, R_acc) * d);  // W frozen at the accepted linearisation
       }
     }
     const bool accept = !have_acc || cost_old <= cost_acc;
