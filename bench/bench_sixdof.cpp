@@ -50,6 +50,7 @@ struct Options {
   std::vector<cli::BackendKind> backends{cli::BackendKind::Cpu};
   std::string dir = "/tmp/perch2_bench_sixdof";
   bool eval_only = false;
+  std::string color_rule;                  ///< "" = the default; any|nearest: SixDofSettings::cost.color_rule
   std::string child_masks, child_backend;  ///< internal: run one configuration over [first, last] and exit
 };
 
@@ -86,6 +87,9 @@ Options parse(int argc, char** argv) {
       o.backends = v == "both"
                        ? std::vector<cli::BackendKind>{cli::BackendKind::Cpu, cli::BackendKind::ThrustOmp}
                        : std::vector<cli::BackendKind>{cli::parse_backend(v)};
+    } else if (a == "--color-rule") {
+      if (v != "any" && v != "nearest") throw InvalidInput("--color-rule", "must be any or nearest");
+      o.color_rule = v;
     } else if (a == "--dir") {
       o.dir = v;
     } else if (a == "--child" && k + 1 < argc) {
@@ -142,7 +146,10 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
   std::vector<SixDofModel> models;
   for (const auto& [id, info] : data.models_info())
     model_of[id] = int(models.size()), models.push_back(sixdof_model(data.load_model(id), info));
-  const SixDofEstimator<Backend> estimator(std::move(models));
+  SixDofSettings settings;
+  if (!o.color_rule.empty())
+    settings.cost.color_rule = o.color_rule == "any" ? ColorRule::AnyNeighbour : ColorRule::Nearest;
+  const SixDofEstimator<Backend> estimator(std::move(models), settings);
   std::vector<dataset::Detection> detections;
   std::map<std::pair<int, int>, std::vector<std::size_t>> detections_of;
   if (masks == "det") {
@@ -300,10 +307,10 @@ int main(int argc, char** argv) try {
       const std::string name = masks + "/" + cli::backend_name(b), dir = config_dir(o, masks, b);
       if (!o.eval_only) {
         std::fprintf(stderr, "%s\n", name.c_str());
-        const std::string command = "'" + fs::canonical("/proc/self/exe").string() + "' --dir '" + o.dir +
-                                    "' --only " + std::to_string(o.first) + "-" +
-                                    std::to_string(std::min(o.last, o.scenes)) + " --child " + masks + " " +
-                                    cli::backend_name(b);
+        const std::string command =
+            "'" + fs::canonical("/proc/self/exe").string() + "' --dir '" + o.dir + "' --only " +
+            std::to_string(o.first) + "-" + std::to_string(std::min(o.last, o.scenes)) + " --child " + masks +
+            " " + cli::backend_name(b) + (o.color_rule.empty() ? "" : " --color-rule " + o.color_rule);
         if (std::system(command.c_str()) != 0) throw InvalidInput(name, "the run failed: " + command);
       }
       rows.push_back(evaluate(o, name, dir));

@@ -86,12 +86,12 @@ struct SixDofSettings {
   /// its observed points: segment x (observed.stride / stride)^2) has its first pass at half the stride,
   /// down to second_pass_stride: a mostly hidden object keeps enough points for GICP and the ranking.
   int first_pass_min_points = 40;
-  /// After the first pass every hypothesis is re-rendered at render.stride and scored with `cost` (a cheap
-  /// ranking); only the best keep_per_instance distinct poses of each instance go on to the second pass,
-  /// the re-render at score_stride and the final cost (0 = all; an instance whose first pass ran on a finer
-  /// grid, see first_pass_min_points, keeps all its distinct poses). Many proposals converge to the same pose:
-  /// two poses are distinct unless their translations differ by less than distinct_translation_m and
-  /// their rotations (under the model's symmetries) by less than distinct_rotation_rad.
+  /// After the first pass every hypothesis is re-rendered at its stride and scored with first_pass_cost (a
+  /// cheap ranking); only the best keep_per_instance distinct poses of each instance go on to the second
+  /// pass, the re-render at score_stride and the final cost (0 = all; an instance whose first pass ran on a
+  /// finer grid, see first_pass_min_points, keeps all its distinct poses). Many proposals converge to the
+  /// same pose: two poses are distinct unless their translations differ by less than distinct_translation_m
+  /// and their rotations (under the model's symmetries) by less than distinct_rotation_rad.
   int keep_per_instance = 12;
   float distinct_translation_m = 0.005f;  ///< metres
   float distinct_rotation_rad = 0.1f;     ///< radians (~6 deg)
@@ -113,9 +113,16 @@ struct SixDofSettings {
   /// Second refinement (after a re-render at the refined pose) with this tighter cap, metres; 0 = none.
   float second_pass_cap_m = 0.012f;
   int second_pass_iterations = 15;  ///< GICP passes of the second refinement (>= 1)
+  /// The final cost (second pass, at score_stride), which selects the pose.
   CostSettings cost = [] {
     CostSettings c;
     c.delta_m = 0.01f;  // authors' 6-DoF delta
+    return c;
+  }();
+  /// The first pass' cheap ranking cost (at the first pass' stride).
+  CostSettings first_pass_cost = [] {
+    CostSettings c;
+    c.delta_m = 0.01f;
     return c;
   }();
   /// Depth-consistency trimming (see the file comment): quantiles of the mask's depths and the margin.
@@ -275,6 +282,7 @@ class SixDofEstimator {
       Pass first;
       first.stride = first.score_stride = stride;
       first.gicp = s.gicp;
+      first.cost = &s.first_pass_cost;
       std::vector<Hypothesis> run(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
       const auto c = run_chunks(frame, occluders, registration, cost, first, run, points_estimate, result);
       std::copy(run.begin(), run.end(), hyps.begin() + std::ptrdiff_t(begin));
@@ -293,6 +301,7 @@ class SixDofEstimator {
     second.gicp.icp_warmup_iterations = 0;
     second.refine = s.second_pass_cap_m > 0;
     second.score_stride = s.score_stride;
+    second.cost = &s.cost;
     const std::vector<CostBreakdown> costs =
         run_chunks(frame, occluders, registration, cost, second, kept, points_estimate, result);
 
@@ -353,10 +362,10 @@ class SixDofEstimator {
     if (s.memory_budget_bytes == 0 || s.bytes_per_point == 0)
       throw InvalidInput("SixDofSettings", "memory_budget_bytes and bytes_per_point must be > 0");
     frame.validate("6-DoF frame");
-    if (s.cost.use_color && frame.rgb.empty())
+    if ((s.cost.use_color || s.first_pass_cost.use_color) && frame.rgb.empty())
       throw InvalidInput("6-DoF frame",
-                         "has no colour image, which the RGB-D cost needs (set cost.use_color = false for "
-                         "the depth-only cost)");
+                         "has no colour image, which the RGB-D cost needs (set cost.use_color and "
+                         "first_pass_cost.use_color = false for the depth-only cost)");
     if (instances.empty()) throw InvalidInput("instances", "no instances given");
     for (std::size_t k = 0; k < instances.size(); ++k) {
       const std::string who = "instances[" + std::to_string(k) + "]";
@@ -442,6 +451,7 @@ class SixDofEstimator {
     GicpSettings gicp;
     bool refine = true;
     int score_stride = 4;
+    const CostSettings* cost = nullptr;
   };
 
   /// Runs `pass` over `hyps` in chunks under the memory budget; moves the hypotheses to their refined
@@ -498,7 +508,7 @@ class SixDofEstimator {
     const auto t = Clock::now();
     CostRequest request;
     for (const auto& h : chunk) request.add(h.label - 1);
-    const std::vector<CostBreakdown> c = cost.evaluate(rendered, request, settings_.cost).hypotheses;
+    const std::vector<CostBreakdown> c = cost.evaluate(rendered, request, *pass.cost).hypotheses;
     costs.insert(costs.end(), c.begin(), c.end());
     result.timings.cost += seconds_since(t);
     return points;
