@@ -14,7 +14,7 @@
 // jittered boxes, misses, look-alike confusions, spurious ones); a missed instance counts as a failure.
 // Usage: bench_sixdof [--scenes N (20)] [--seed S (2020)] [--only A-B (all)] [--masks gt|det|both (both)]
 //                     [--backend cpu|thrust_omp|both (cpu)] [--dir SCRATCH (/tmp/perch2_bench_sixdof)]
-//                     [--eval-only]
+//                     [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]
 #include <omp.h>
 
 #include <cstdio>
@@ -50,14 +50,16 @@ struct Options {
   std::vector<cli::BackendKind> backends{cli::BackendKind::Cpu};
   std::string dir = "/tmp/perch2_bench_sixdof";
   bool eval_only = false;
-  std::string color_rule;                  ///< "" = the default; any|nearest: SixDofSettings::cost.color_rule
+  std::string color_rule;  ///< "" = the default; any|nearest: SixDofSettings::cost.color_rule
+  int warmup = -1,
+      iterations = -1;  ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
   std::string child_masks, child_backend;  ///< internal: run one configuration over [first, last] and exit
 };
 
 constexpr const char* kUsage =
     "bench_sixdof [--scenes N] [--seed S] [--only A-B] [--masks gt|det|both] [--backend "
     "cpu|thrust_omp|both]\n"
-    "             [--dir SCRATCH] [--eval-only]";
+    "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -90,6 +92,8 @@ Options parse(int argc, char** argv) {
     } else if (a == "--color-rule") {
       if (v != "any" && v != "nearest") throw InvalidInput("--color-rule", "must be any or nearest");
       o.color_rule = v;
+    } else if (a == "--warmup" || a == "--iterations") {
+      (a == "--warmup" ? o.warmup : o.iterations) = std::stoi(v);
     } else if (a == "--dir") {
       o.dir = v;
     } else if (a == "--child" && k + 1 < argc) {
@@ -149,6 +153,8 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
   SixDofSettings settings;
   if (!o.color_rule.empty())
     settings.cost.color_rule = o.color_rule == "any" ? ColorRule::AnyNeighbour : ColorRule::Nearest;
+  if (o.warmup >= 0) settings.gicp.icp_warmup_iterations = o.warmup;
+  if (o.iterations >= 0) settings.gicp.max_iterations = o.iterations;
   const SixDofEstimator<Backend> estimator(std::move(models), settings);
   std::vector<dataset::Detection> detections;
   std::map<std::pair<int, int>, std::vector<std::size_t>> detections_of;
