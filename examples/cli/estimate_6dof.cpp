@@ -16,21 +16,6 @@
 namespace perch2::cli {
 namespace {
 
-/// Keeps the instances whose object is a target of this image (others are not evaluated: no time on them).
-BopInstances only_targets(BopInstances in, const std::vector<dataset::Target>& targets) {
-  std::set<int> wanted;
-  for (const auto& t : targets) wanted.insert(t.obj_id);
-  BopInstances out;
-  out.skipped = in.skipped;
-  for (std::size_t k = 0; k < in.instances.size(); ++k)
-    if (wanted.count(in.obj_ids[k])) {
-      out.instances.push_back(std::move(in.instances[k]));
-      out.obj_ids.push_back(in.obj_ids[k]);
-      out.sources.push_back(in.sources[k]);
-    }
-  return out;
-}
-
 template <class Backend>
 int run(const dataset::BopDataset& data,
         const std::map<std::pair<int, int>, std::vector<dataset::Target>>& images, const SixDofOptions& o) {
@@ -59,7 +44,7 @@ int run(const dataset::BopDataset& data,
 
   std::vector<dataset::PoseEstimate> rows;
   SixDofTimings sum;
-  int done = 0, instances = 0;
+  int done = 0, instances = 0, unusable = 0;
   double seconds = 0;
   dataset::ImageLoadOptions load;
   load.masks_visib = o.masks == "gt";
@@ -69,7 +54,9 @@ int run(const dataset::BopDataset& data,
         o.masks == "gt"
             ? bop_instances_from_gt(image, model_of, o.box_full ? BoxKind::Full : BoxKind::Visible)
             : bop_instances_from_detections(image, detections, detections_of[key], model_of);
-    const BopInstances in = only_targets(all, targets);
+    const BopInstances in =
+        usable_instances(only_targets(all, targets), image.frame, estimator.settings().observed);
+    unusable += int(in.skipped.size() - all.skipped.size());
     SixDofResult result;
     const auto image_rows = estimate_bop_image(estimator, image, in, &result);
     rows.insert(rows.end(), image_rows.begin(), image_rows.end());
@@ -94,6 +81,8 @@ int run(const dataset::BopDataset& data,
   dataset::save_results_csv(o.out, rows);
   std::printf("perch2 estimate: %zu poses for %d instances in %d images -> %s\n", rows.size(), instances,
               done, o.out.c_str());
+  if (unusable > 0)
+    std::printf("  %d instance(s) skipped: too few valid depth readings inside the mask\n", unusable);
   const double n = done > 0 ? double(done) : 1.0;
   std::printf(
       "per-stage wall-clock seconds per image: observed %.3f, proposals %.3f, render %.3f, refine %.3f, "

@@ -15,12 +15,17 @@
 //              targets, J_o's points).
 //   proposals  rotations (viewpoints x in-plane, symmetry de-duplicated) x depths on the box centre's ray
 //              (perch2/search/proposals.hpp)
-//   per chunk of hypotheses (sized to memory_budget_bytes, so 10x the proposals run in the same memory):
-//     render   at render.stride, occluders = observed depth with labels: only other instances' or
+//   first pass, every proposal, in chunks (sized to memory_budget_bytes: 10x the proposals run in the same
+//   memory, just slower):
+//     render   at render.stride (8), occluders = observed depth with labels: only other instances' or
 //              background pixels hide a hypothesis (its own label never does)
 //     refine   GICP (ICP warm-up first: starts are up to half a proposal spacing off) against the
-//              hypothesis' own segment; then re-rendered and a second GICP pass with a tighter cap, so a
-//              badly trimmed mask's remaining stray points cannot pull the converged pose
+//              hypothesis' own segment
+//     cost     re-rendered at render.stride and scored with the RGB-D cost: a cheap ranking
+//   keep       the best keep_per_instance distinct poses per instance (many proposals converge to one pose)
+//   second pass, the kept hypotheses only:
+//     refine   re-rendered at second_pass_stride (4), GICP with a tighter cap, so a badly trimmed mask's
+//              remaining stray points cannot pull the converged pose
 //     cost     re-rendered at score_stride; RGB-D cost (perch2/cost/cost.hpp) with J_o over the whole
 //              segment of the instance (volume -1)
 //     select   keeps the lowest-cost acceptable hypothesis per instance
@@ -68,9 +73,31 @@ struct SixDofInstance {
 struct SixDofSettings {
   ProposalSettings proposals;  ///< 40 viewpoints x 4 in-plane x <= 3 depths every 0.02 m (proposals.hpp)
   ObservedCloudSettings observed{2};  ///< observed points (GICP targets, J_o) on this stride grid
-  /// Renders before refinement. Stride 4 at 640 x 480 (the authors used 8) keeps hundreds of points on a
-  /// YCB-sized object at 1 m.
-  RenderSettings render;
+  /// Renders of the first (coarse) pass, which every proposal goes through: stride 8 at 640 x 480 as the
+  /// authors' (~100 points on a 10 cm object at 0.8 m, enough to pull a start 2-4 cm off onto the
+  /// object; GICP's time is about proportional to the points). The second pass refines at
+  /// second_pass_stride.
+  RenderSettings render = [] {
+    RenderSettings r;
+    r.stride = 8;
+    return r;
+  }();
+  /// An instance whose segment would show fewer than this many points at render.stride (estimated from
+  /// its observed points: segment x (observed.stride / stride)^2) has its first pass at half the stride,
+  /// down to second_pass_stride: a mostly hidden object keeps enough points for GICP and the ranking.
+  int first_pass_min_points = 40;
+  /// After the first pass every hypothesis is re-rendered at its stride and scored with first_pass_cost (a
+  /// cheap ranking); only the best keep_per_instance distinct poses of each instance go on to the second
+  /// pass, the re-render at score_stride and the final cost (0 = all; an instance whose first pass ran on a
+  /// finer grid, see first_pass_min_points, keeps all its distinct poses). Many proposals converge to the
+  /// same pose: two poses are distinct unless their translations differ by less than distinct_translation_m
+  /// and their rotations (under the model's symmetries) by less than distinct_rotation_rad.
+  int keep_per_instance = 12;
+  float distinct_translation_m = 0.005f;  ///< metres
+  float distinct_rotation_rad = 0.1f;     ///< radians (~6 deg)
+  /// Stride of the second pass's render (>= 1): 4 at 640 x 480 keeps ~300-500 points on a YCB-sized object
+  /// at 0.8 m for the final, tighter refinement.
+  int second_pass_stride = 4;
   /// Stride of the re-render that is scored (>= 1). 4 at 640 x 480: on two generated 640 x 480 scenes
   /// (9 instances) every pose had the same ADD-S (< 3 mm) as with stride 2, at a third of the cost time.
   int score_stride = 4;
@@ -86,9 +113,16 @@ struct SixDofSettings {
   /// Second refinement (after a re-render at the refined pose) with this tighter cap, metres; 0 = none.
   float second_pass_cap_m = 0.012f;
   int second_pass_iterations = 15;  ///< GICP passes of the second refinement (>= 1)
+  /// The final cost (second pass, at score_stride), which selects the pose.
   CostSettings cost = [] {
     CostSettings c;
     c.delta_m = 0.01f;  // authors' 6-DoF delta
+    return c;
+  }();
+  /// The first pass' cheap ranking cost (at the first pass' stride).
+  CostSettings first_pass_cost = [] {
+    CostSettings c;
+    c.delta_m = 0.01f;
     return c;
   }();
   /// Depth-consistency trimming (see the file comment): quantiles of the mask's depths and the margin.
@@ -124,6 +158,7 @@ struct SixDofResult {
   std::vector<std::size_t> segment_points;  ///< observed points per instance after trimming
   std::vector<std::size_t> trimmed_pixels;  ///< mask pixels dropped by the depth-consistency trimming
   std::size_t hypotheses_total = 0, chunks = 0, chunk_hypotheses = 0;
+  std::size_t second_pass_hypotheses = 0;  ///< hypotheses kept for the second pass (all instances)
   /// Largest chunk's estimated working memory (its rendered points x bytes_per_point), bytes.
   std::size_t peak_chunk_bytes = 0;
   SixDofTimings timings;
@@ -228,32 +263,66 @@ class SixDofEstimator {
       result.hypotheses.push_back(poses.size());
       // The object's image at the nearest depth covers at most its diameter's projection, squared.
       const float px = frame.camera.fx * diameter_[in.model] / std::max(depths.front(), 1e-3f);
-      const int stride = std::min(s.render.stride, s.score_stride);
+      const int stride = std::min({s.render.stride, s.second_pass_stride, s.score_stride});
       points_estimate.push_back(std::size_t(px * px / float(stride * stride)) + 1);
     }
     result.hypotheses_total = hyps.size();
     result.timings.proposals = seconds_since(t);
 
-    // ---- chunks: render, refine, re-render, cost, select
+    // ---- first pass over every proposal (chunks): render, refine, re-render, cheap cost. Each instance at
+    // the coarsest stride that still shows it with first_pass_min_points (a mostly hidden object is
+    // refined on a finer grid); hypotheses are grouped by instance, so each stride is a contiguous run.
+    std::vector<int> first_stride(K);
+    for (std::size_t k = 0; k < K; ++k) first_stride[k] = first_pass_stride(result.segment_points[k]);
+    std::vector<CostBreakdown> first_costs;
+    for (std::size_t begin = 0; begin < hyps.size();) {
+      const int stride = first_stride[std::size_t(hyps[begin].label - 1)];
+      std::size_t end = begin;
+      while (end < hyps.size() && first_stride[std::size_t(hyps[end].label - 1)] == stride) ++end;
+      Pass first;
+      first.stride = first.score_stride = stride;
+      first.gicp = s.gicp;
+      first.cost = &s.first_pass_cost;
+      std::vector<Hypothesis> run(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
+      const auto c = run_chunks(frame, occluders, registration, cost, first, run, points_estimate, result);
+      std::copy(run.begin(), run.end(), hyps.begin() + std::ptrdiff_t(begin));
+      first_costs.insert(first_costs.end(), c.begin(), c.end());
+      begin = end;
+    }
+
+    // ---- second pass over the best distinct poses of each instance: tighter refinement, final cost
+    std::vector<Hypothesis> kept = keep_best(hyps, first_costs, first_stride, instances);
+    result.second_pass_hypotheses = kept.size();
+    Pass second;
+    second.stride = s.second_pass_stride;
+    second.gicp = s.gicp;
+    second.gicp.max_correspondence_distance_m = s.second_pass_cap_m;
+    second.gicp.max_iterations = s.second_pass_iterations;
+    second.gicp.icp_warmup_iterations = 0;
+    second.refine = s.second_pass_cap_m > 0;
+    second.score_stride = s.score_stride;
+    second.cost = &s.cost;
+    const std::vector<CostBreakdown> costs =
+        run_chunks(frame, occluders, registration, cost, second, kept, points_estimate, result);
+
+    // ---- select
+    t = Clock::now();
     std::vector<float> best_total(K, std::numeric_limits<float>::infinity());
     std::vector<SixDofPose> best(K);
     for (std::size_t k = 0; k < K; ++k) best[k].instance = int(k), best[k].model = instances[k].model;
-    std::size_t begin = 0;
-    while (begin < hyps.size()) {
-      std::size_t end = begin, bytes = 0;
-      while (end < hyps.size()) {
-        const std::size_t b = points_estimate[std::size_t(hyps[end].label - 1)] * s.bytes_per_point;
-        if (end > begin && bytes + b > s.memory_budget_bytes) break;
-        bytes += b, ++end;
-      }
-      std::vector<Hypothesis> chunk(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
-      const std::size_t points =
-          run_chunk(frame, occluders, registration, cost, chunk, best_total, best, result);
-      result.peak_chunk_bytes = std::max(result.peak_chunk_bytes, points * s.bytes_per_point);
-      result.chunk_hypotheses = std::max(result.chunk_hypotheses, chunk.size());
-      ++result.chunks;
-      begin = end;
+    for (std::size_t h = 0; h < kept.size(); ++h) {
+      const auto k = std::size_t(kept[h].label - 1);
+      const bool acceptable = costs[h].rendered_points >= s.min_rendered_points;
+      // An acceptable hypothesis beats any unacceptable one; among equals the lower total wins.
+      const bool better =
+          (acceptable && !best[k].found) || (acceptable == best[k].found && costs[h].total < best_total[k]);
+      if (!better) continue;
+      best_total[k] = costs[h].total;
+      best[k].T_cam_obj = kept[h].T_cam_obj;
+      best[k].found = acceptable;
+      best[k].cost = costs[h];
     }
+    result.timings.select += seconds_since(t);
     for (auto& p : best) {
       const CostBreakdown& b = p.cost;
       const float n = float(b.rendered_points + b.observed_in_volume);
@@ -279,6 +348,11 @@ class SixDofEstimator {
     perch2::validate(s.proposals);
     perch2::validate(s.gicp);
     if (s.score_stride < 1) throw InvalidInput("SixDofSettings::score_stride", "must be >= 1");
+    if (s.second_pass_stride < 1) throw InvalidInput("SixDofSettings::second_pass_stride", "must be >= 1");
+    if (s.render.stride < 1) throw InvalidInput("SixDofSettings::render.stride", "must be >= 1");
+    if (s.keep_per_instance < 0) throw InvalidInput("SixDofSettings::keep_per_instance", "must be >= 0");
+    if (!(s.distinct_translation_m >= 0) || !(s.distinct_rotation_rad >= 0))
+      throw InvalidInput("SixDofSettings::distinct_*", "must be >= 0");
     if (!(s.second_pass_cap_m >= 0)) throw InvalidInput("SixDofSettings::second_pass_cap_m", "must be >= 0");
     if (s.second_pass_iterations < 1)
       throw InvalidInput("SixDofSettings::second_pass_iterations", "must be >= 1");
@@ -288,10 +362,10 @@ class SixDofEstimator {
     if (s.memory_budget_bytes == 0 || s.bytes_per_point == 0)
       throw InvalidInput("SixDofSettings", "memory_budget_bytes and bytes_per_point must be > 0");
     frame.validate("6-DoF frame");
-    if (s.cost.use_color && frame.rgb.empty())
+    if ((s.cost.use_color || s.first_pass_cost.use_color) && frame.rgb.empty())
       throw InvalidInput("6-DoF frame",
-                         "has no colour image, which the RGB-D cost needs (set cost.use_color = false for "
-                         "the depth-only cost)");
+                         "has no colour image, which the RGB-D cost needs (set cost.use_color and "
+                         "first_pass_cost.use_color = false for the depth-only cost)");
     if (instances.empty()) throw InvalidInput("instances", "no instances given");
     for (std::size_t k = 0; k < instances.size(); ++k) {
       const std::string who = "instances[" + std::to_string(k) + "]";
@@ -357,50 +431,133 @@ class SixDofEstimator {
     result.timings.refine += sixdof_detail::seconds_since(t);
   }
 
-  /// Refines and scores one chunk, updating the per-instance best. Returns the chunk's rendered points.
+  /// The first pass' stride for an instance with `segment_points` observed points (see
+  /// SixDofSettings::first_pass_min_points).
+  int first_pass_stride(std::size_t segment_points) const {
+    const SixDofSettings& s = settings_;
+    int stride = s.render.stride;
+    auto expected = [&](int st) {
+      return double(segment_points) * double(s.observed.stride * s.observed.stride) / double(st * st);
+    };
+    while (stride / 2 >= s.second_pass_stride && expected(stride) < double(s.first_pass_min_points))
+      stride /= 2;
+    return stride;
+  }
+
+  /// One pass over hypotheses: render at `stride`, refine with `gicp` (if `refine`), re-render at
+  /// score_stride and score.
+  struct Pass {
+    int stride = 4;
+    GicpSettings gicp;
+    bool refine = true;
+    int score_stride = 4;
+    const CostSettings* cost = nullptr;
+  };
+
+  /// Runs `pass` over `hyps` in chunks under the memory budget; moves the hypotheses to their refined
+  /// poses and returns their costs, in order.
+  std::vector<CostBreakdown> run_chunks(const RgbdFrame& frame, const Occluders& occ,
+                                        const typename Backend::Registration& registration,
+                                        const typename Backend::Cost& cost, const Pass& pass,
+                                        std::vector<Hypothesis>& hyps,
+                                        const std::vector<std::size_t>& points_estimate,
+                                        SixDofResult& result) const {
+    const SixDofSettings& s = settings_;
+    // points_estimate is for the finest stride in use; a coarser render has fewer points.
+    const int finest = std::min({s.render.stride, s.second_pass_stride, s.score_stride});
+    const int coarsest_here = std::min(pass.stride, pass.score_stride);
+    const double scale = double(finest * finest) / double(coarsest_here * coarsest_here);
+    std::vector<CostBreakdown> costs;
+    costs.reserve(hyps.size());
+    std::size_t begin = 0;
+    while (begin < hyps.size()) {
+      std::size_t end = begin, bytes = 0;
+      while (end < hyps.size()) {
+        const std::size_t b = std::size_t(double(points_estimate[std::size_t(hyps[end].label - 1)]) * scale *
+                                          double(s.bytes_per_point)) +
+                              1;
+        if (end > begin && bytes + b > s.memory_budget_bytes) break;
+        bytes += b, ++end;
+      }
+      std::vector<Hypothesis> chunk(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
+      const std::size_t points = run_chunk(frame, occ, registration, cost, pass, chunk, costs, result);
+      std::copy(chunk.begin(), chunk.end(), hyps.begin() + std::ptrdiff_t(begin));
+      result.peak_chunk_bytes = std::max(result.peak_chunk_bytes, points * s.bytes_per_point);
+      result.chunk_hypotheses = std::max(result.chunk_hypotheses, chunk.size());
+      ++result.chunks;
+      begin = end;
+    }
+    return costs;
+  }
+
+  /// Renders, refines, re-renders and scores one chunk (appending its costs). Returns its largest rendered
+  /// point count.
   std::size_t run_chunk(const RgbdFrame& frame, const Occluders& occ,
                         const typename Backend::Registration& registration,
-                        const typename Backend::Cost& cost, std::vector<Hypothesis>& chunk,
-                        std::vector<float>& best_total, std::vector<SixDofPose>& best,
-                        SixDofResult& result) const {
+                        const typename Backend::Cost& cost, const Pass& pass, std::vector<Hypothesis>& chunk,
+                        std::vector<CostBreakdown>& costs, SixDofResult& result) const {
     using namespace sixdof_detail;
-    const SixDofSettings& s = settings_;
-    CloudBatch rendered = render(chunk, frame.camera, s.render.stride, occ, result);
-    std::size_t points = rendered.size();
-    refine(chunk, rendered, registration, s.gicp, result);
-    if (s.second_pass_cap_m > 0) {
-      rendered = render(chunk, frame.camera, s.render.stride, occ, result);
-      points = std::max(points, rendered.size());
-      GicpSettings tight = s.gicp;
-      tight.max_correspondence_distance_m = s.second_pass_cap_m;
-      tight.max_iterations = s.second_pass_iterations;
-      tight.icp_warmup_iterations = 0;
-      refine(chunk, rendered, registration, tight, result);
+    std::size_t points = 0;
+    if (pass.refine) {
+      const CloudBatch rendered = render(chunk, frame.camera, pass.stride, occ, result);
+      points = rendered.size();
+      refine(chunk, rendered, registration, pass.gicp, result);
     }
-    rendered = render(chunk, frame.camera, s.score_stride, occ, result);
+    const CloudBatch rendered = render(chunk, frame.camera, pass.score_stride, occ, result);
     points = std::max(points, rendered.size());
-
-    auto t = Clock::now();
+    const auto t = Clock::now();
     CostRequest request;
     for (const auto& h : chunk) request.add(h.label - 1);
-    const std::vector<CostBreakdown> costs = cost.evaluate(rendered, request, s.cost).hypotheses;
+    const std::vector<CostBreakdown> c = cost.evaluate(rendered, request, *pass.cost).hypotheses;
+    costs.insert(costs.end(), c.begin(), c.end());
     result.timings.cost += seconds_since(t);
-
-    t = Clock::now();
-    for (std::size_t h = 0; h < chunk.size(); ++h) {
-      const auto k = std::size_t(chunk[h].label - 1);
-      const bool acceptable = costs[h].rendered_points >= s.min_rendered_points;
-      // An acceptable hypothesis beats any unacceptable one; among equals the lower total wins.
-      const bool better =
-          (acceptable && !best[k].found) || (acceptable == best[k].found && costs[h].total < best_total[k]);
-      if (!better) continue;
-      best_total[k] = costs[h].total;
-      best[k].T_cam_obj = chunk[h].T_cam_obj;
-      best[k].found = acceptable;
-      best[k].cost = costs[h];
-    }
-    result.timings.select += seconds_since(t);
     return points;
+  }
+
+  /// The best keep_per_instance distinct hypotheses of each instance by cost (all if 0), in instance then
+  /// cost order. A hypothesis showing fewer than min_rendered_points (scaled to the first pass' stride)
+  /// ranks after every one that shows enough.
+  std::vector<Hypothesis> keep_best(const std::vector<Hypothesis>& hyps,
+                                    const std::vector<CostBreakdown>& costs, const std::vector<int>& stride,
+                                    const std::vector<SixDofInstance>& instances) const {
+    const SixDofSettings& s = settings_;
+    const std::size_t K = instances.size();
+    std::vector<int> min_points(K);
+    for (std::size_t k = 0; k < K; ++k) {
+      const float ratio = float(s.score_stride) / float(stride[k]);
+      min_points[k] = std::max(3, int(std::lround(float(s.min_rendered_points) * ratio * ratio)));
+    }
+    std::vector<std::size_t> order(hyps.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    auto rank = [&](std::size_t i) {  // (shows too few points, cost): showing enough ranks first
+      return std::make_pair(costs[i].rendered_points < min_points[std::size_t(hyps[i].label - 1)],
+                            costs[i].total);
+    };
+    std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+      return hyps[a].label != hyps[b].label ? hyps[a].label < hyps[b].label : rank(a) < rank(b);
+    });
+    std::vector<Hypothesis> kept;
+    std::vector<std::size_t> count(K, 0);
+    for (const std::size_t i : order) {
+      const auto k = std::size_t(hyps[i].label - 1);
+      // A mostly hidden instance (first pass on a finer grid) keeps every distinct pose: its ranking rests
+      // on few points, and its second pass is cheap for the same reason.
+      const bool all = s.keep_per_instance == 0 || stride[k] < s.render.stride;
+      if (!all && count[k] >= std::size_t(s.keep_per_instance)) continue;
+      const ModelSymmetries& sym = models_[std::size_t(instances[k].model)].symmetries;
+      const bool duplicate =
+          s.keep_per_instance > 0 &&
+          std::any_of(kept.end() - std::ptrdiff_t(count[k]), kept.end(), [&](const Hypothesis& o) {
+            return (o.T_cam_obj.translation() - hyps[i].T_cam_obj.translation()).norm() <
+                       s.distinct_translation_m &&
+                   symmetric_rotation_distance(hyps[i].T_cam_obj.linear(), o.T_cam_obj.linear(), sym) <
+                       s.distinct_rotation_rad;
+          });
+      if (duplicate) continue;
+      kept.push_back(hyps[i]);
+      ++count[k];
+    }
+    return kept;
   }
 
   std::vector<SixDofModel> models_;

@@ -12,7 +12,9 @@
 //   auto rows = perch2::estimate_bop_image(estimator, image, in);   // -> save_results_csv
 #pragma once
 
+#include <algorithm>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -113,6 +115,57 @@ inline BopInstances bop_instances_from_detections(const dataset::BopImage& image
     out.instances.push_back(std::move(in));
     out.obj_ids.push_back(d.category_id);
     out.sources.push_back(int(i));
+  }
+  return out;
+}
+
+/// Keeps the instances whose object is a target of the image (others are not evaluated: no time on them).
+inline BopInstances only_targets(BopInstances in, const std::vector<dataset::Target>& targets) {
+  std::set<int> wanted;
+  for (const auto& t : targets) wanted.insert(t.obj_id);
+  BopInstances out;
+  out.skipped = in.skipped;
+  for (std::size_t k = 0; k < in.instances.size(); ++k)
+    if (wanted.count(in.obj_ids[k])) {
+      out.instances.push_back(std::move(in.instances[k]));
+      out.obj_ids.push_back(in.obj_ids[k]);
+      out.sources.push_back(in.sources[k]);
+    }
+  return out;
+}
+
+/// Drops the instances the estimator could not pose and lists them in `skipped` (their GT index or
+/// detection index): those left with fewer than `min_points` valid depth readings on the observed stride
+/// grid once later instances' masks have taken the pixels they overlap (SixDofEstimator's label rule). A
+/// mask over a region without depth (glass, a dark object, a depth shadow) or a detection buried under
+/// another would otherwise stop the whole image with InvalidInput. `stride` and the depth range come from
+/// the estimator's settings (SixDofSettings::observed).
+inline BopInstances usable_instances(BopInstances in, const RgbdFrame& frame,
+                                     const ObservedCloudSettings& observed, int min_points = 10) {
+  const int w = frame.camera.width, h = frame.camera.height;
+  std::vector<std::int32_t> owner(std::size_t(w) * std::size_t(h), -1);
+  for (std::size_t k = 0; k < in.instances.size(); ++k) {
+    check_size(in.instances[k].mask, w, h, "instance " + std::to_string(k) + " mask");
+    for (std::size_t i = 0; i < owner.size(); ++i)
+      if (in.instances[k].mask.data[i]) owner[i] = std::int32_t(k);
+  }
+  std::vector<int> points(in.instances.size(), 0);
+  const int stride = std::max(observed.stride, 1);
+  for (int v = 0; v < h; v += stride)
+    for (int u = 0; u < w; u += stride) {
+      const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
+      if (owner[i] >= 0 && observed_detail::keep(frame.depth_m.data[i], observed)) ++points[owner[i]];
+    }
+  BopInstances out;
+  out.skipped = in.skipped;
+  for (std::size_t k = 0; k < in.instances.size(); ++k) {
+    if (points[k] < min_points) {
+      out.skipped.push_back(in.sources[k]);
+      continue;
+    }
+    out.instances.push_back(std::move(in.instances[k]));
+    out.obj_ids.push_back(in.obj_ids[k]);
+    out.sources.push_back(in.sources[k]);
   }
   return out;
 }
