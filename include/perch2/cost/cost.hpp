@@ -35,6 +35,7 @@
 #include "perch2/core/error.hpp"
 #include "perch2/core/mesh.hpp"
 #include "perch2/core/pose.hpp"
+#include "perch2/render/raster.hpp"  // float_bits
 
 namespace perch2 {
 
@@ -149,6 +150,45 @@ struct OutlierVote {
     if (!found) return kDepthOutlier;
     if (!use_color) return kInlier;
     const bool ok = any_rule ? color_match : ciede2000<float>(lab, others[best], kL) <= tau_c;
+    return ok ? kInlier : kColorOutlier;
+  }
+};
+
+/// J_o without a search of its own. The J_r search of a rendered point p of hypothesis h visits every
+/// observed point o of h's segment within delta of p; those with o inside V(h) are exactly the pairs a J_o
+/// search of o among h's rendered points would visit (the squared distance is symmetric bit for bit:
+/// (a - b)^2 == (b - a)^2, summed over x, y, z in the same order). So each observed point of V(h) keeps a
+/// record filled from the J_r search: flags (kPairFound, kPairColorMatch) and, for ColorRule::Nearest, the
+/// smallest pair_key(d2, p). Flags only get set and the key only decreases, so the record does not depend on
+/// the order in which pairs arrive (threads may update it concurrently with atomics).
+enum : std::uint32_t { kPairFound = 1u, kPairColorMatch = 2u };
+constexpr std::uint64_t kNoPair = ~std::uint64_t(0);
+
+/// (d2, index) as one integer that orders like the pair (non-negative floats order like their bits), so a
+/// minimum picks the nearest point and breaks exact ties by the smaller index, as OutlierVote does.
+PERCH2_HD inline std::uint64_t pair_key(float d2, std::int32_t index) {
+  return (std::uint64_t(float_bits(d2)) << 32) | std::uint32_t(index);
+}
+
+/// The colour half of OutlierVote for one observed point: lab is its colour, rendered the searched colours.
+struct PairColorTest {
+  float tau_c;
+  float kL;
+  bool use_color;
+  bool any_rule;
+
+  /// Whether pair (observed colour lab, rendered point p) can still change the flags: with the
+  /// AnyNeighbour rule, the colour test of p (observed colour first, as the OutlierVote of o would run it).
+  PERCH2_HD bool matches(Lab<float> lab, const Lab<float>* rendered, std::int32_t p) const {
+    return ciede2000<float>(lab, rendered[p], kL) <= tau_c;
+  }
+  /// PointClass of the observed point from its record; equal to OutlierVote::result() over the same pairs.
+  PERCH2_HD std::uint8_t result(std::uint32_t flags, std::uint64_t nearest, Lab<float> lab,
+                                const Lab<float>* rendered) const {
+    if (!(flags & kPairFound)) return kDepthOutlier;
+    if (!use_color) return kInlier;
+    const bool ok = any_rule ? (flags & kPairColorMatch) != 0u
+                             : matches(lab, rendered, std::int32_t(nearest & 0xffffffffu));
     return ok ? kInlier : kColorOutlier;
   }
 };
