@@ -40,6 +40,8 @@ struct PairVisitor final : KnnIndex::RadiusVisitor {
   PairColorTest test;
   std::uint32_t* flags;
   std::uint64_t* nearest;
+  std::uint64_t* failed;  ///< per slot: a rendered colour that failed, or kNoPair
+  const std::uint32_t* rendered_rgb;
   std::int32_t p;
   bool has_volume;
 
@@ -48,9 +50,12 @@ struct PairVisitor final : KnnIndex::RadiusVisitor {
     const std::int32_t k = slot[o];
     if (k < 0) return;
     if (test.use_color && !test.any_rule) nearest[k] = std::min(nearest[k], pair_key(d2, p));
-    if (test.use_color && test.any_rule && !(flags[k] & kPairColorMatch) &&
-        test.matches(observed_lab[o], rendered_lab, p))
-      flags[k] |= kPairColorMatch;
+    if (test.use_color && test.any_rule && !(flags[k] & kPairColorMatch) && failed[k] != rendered_rgb[p]) {
+      if (test.matches(observed_lab[o], rendered_lab, p))
+        flags[k] |= kPairColorMatch;
+      else
+        failed[k] = rendered_rgb[p];
+    }
     flags[k] |= kPairFound;
   }
   float bound_m2() const override {
@@ -118,7 +123,7 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
   {
     std::vector<std::int32_t> slot(m.observed.size(), -1);
     std::vector<std::uint32_t> flags;
-    std::vector<std::uint64_t> nearest;
+    std::vector<std::uint64_t> nearest, failed;
 #pragma omp for schedule(dynamic, 1)
     for (std::int64_t hi = 0; hi < std::int64_t(n); ++hi) {
       const auto h = std::size_t(hi);
@@ -128,6 +133,7 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
       for (std::size_t k = 0; k < inside.size(); ++k) slot[std::size_t(inside[k])] = std::int32_t(k);
       flags.assign(inside.size(), 0u);
       nearest.assign(inside.size(), kNoPair);
+      failed.assign(inside.size(), kNoPair);
       CostBreakdown& b = result.hypotheses[h];
       for (std::int64_t i = rendered.offsets[h]; i < rendered.offsets[h + 1]; ++i) {
         const auto q = std::size_t(i);
@@ -136,6 +142,7 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
         v.delta2 = s.delta_m * s.delta_m, v.slot = slot.data(), v.observed_lab = m.lab.data();
         v.rendered_lab = rendered_lab.data();
         v.test = test, v.flags = flags.data(), v.nearest = nearest.data();
+        v.failed = failed.data(), v.rendered_rgb = rendered.rgb.data();
         v.p = std::int32_t(i), v.has_volume = !inside.empty();
         const float p[3] = {rendered.x[q], rendered.y[q], rendered.z[q]};
         m.index.radius_visit(p, std::int32_t(seg), v);

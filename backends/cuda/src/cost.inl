@@ -55,6 +55,8 @@ struct PairRecords {
   const std::int64_t* offsets;
   std::uint32_t* flags;
   std::uint64_t* nearest;
+  std::uint64_t* failed;  ///< a rendered colour that failed the colour test, or kNoPair
+  const std::uint32_t* rendered_rgb;
   const Lab<float>* observed_lab;
   const Lab<float>* rendered_lab;
   PairColorTest test;
@@ -88,9 +90,17 @@ struct PairVisitor {
       if (k < ref.load(cuda::memory_order_relaxed)) ref.fetch_min(k, cuda::memory_order_relaxed);
     }
     const std::uint32_t now = flags.load(cuda::memory_order_relaxed);
-    if (t.use_color && t.any_rule && !(now & kPairColorMatch) &&
-        t.matches(r->observed_lab[o], r->rendered_lab, p))
-      set |= kPairColorMatch;
+    if (t.use_color && t.any_rule && !(now & kPairColorMatch)) {
+      auto* word = reinterpret_cast<unsigned long long*>(r->failed + lo);
+      cuda::atomic_ref<unsigned long long, cuda::thread_scope_device> failed(*word);
+      const unsigned long long colour = r->rendered_rgb[p];
+      if (failed.load(cuda::memory_order_relaxed) != colour) {
+        if (t.matches(r->observed_lab[o], r->rendered_lab, p))
+          set |= kPairColorMatch;
+        else
+          failed.store(colour, cuda::memory_order_relaxed);
+      }
+    }
     if ((now | set) != now) flags.fetch_or(set, cuda::memory_order_relaxed);
   }
   /// Only a hypothesis without volume points may stop at the point's own decision.
@@ -268,13 +278,11 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   thrust::sort(thrust::device, ptr(keys), ptr(keys) + num_pairs);  // each hypothesis' range by point
   thrust::device_vector<std::uint32_t> flags(static_cast<std::size_t>(num_pairs), 0u);
   thrust::device_vector<std::uint64_t> nearest(static_cast<std::size_t>(num_pairs), kNoPair);
-  const PairRecords records{ptr(keys),
-                            ptr(pair_offsets),
-                            ptr(flags),
-                            ptr(nearest),
-                            ptr(m.lab),
-                            ptr(rlab),
-                            {s.tau_c, s.lightness_factor, s.use_color, params.any_rule}};
+  thrust::device_vector<std::uint64_t> failed(static_cast<std::size_t>(num_pairs), kNoPair);
+  const PairRecords records{
+      ptr(keys),    ptr(pair_offsets), ptr(flags),
+      ptr(nearest), ptr(failed),       ptr(rgb),
+      ptr(m.lab),   ptr(rlab),         {s.tau_c, s.lightness_factor, s.use_color, params.any_rule}};
 
   // J_r, filling the pair records; then J_o from them.
   thrust::device_vector<std::uint8_t> rclass(static_cast<std::size_t>(nr));

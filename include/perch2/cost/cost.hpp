@@ -160,9 +160,12 @@ struct OutlierVote {
 /// (a - b)^2 == (b - a)^2, summed over x, y, z in the same order). So each observed point of V(h) keeps a
 /// record filled from the J_r search: flags (kPairFound, kPairColorMatch) and, for ColorRule::Nearest, the
 /// smallest pair_key(d2, p). Flags only get set and the key only decreases, so the record does not depend on
-/// the order in which pairs arrive (threads may update it concurrently with atomics).
+/// the order in which pairs arrive (threads may update it concurrently with atomics). Under AnyNeighbour the
+/// record also remembers a rendered colour (packed rgb) that failed the colour test, so the next pair of the
+/// same colour skips CIEDE2000 (a rendered object shows few colours: a third of the J_o evaluations on the
+/// bench_search3dof scenes). Any colour it holds did fail, so a stale value read by a racing thread is safe.
 enum : std::uint32_t { kPairFound = 1u, kPairColorMatch = 2u };
-constexpr std::uint64_t kNoPair = ~std::uint64_t(0);
+constexpr std::uint64_t kNoPair = ~std::uint64_t(0);  ///< blank nearest key, and blank failed colour
 
 /// (d2, index) as one integer that orders like the pair (non-negative floats order like their bits), so a
 /// minimum picks the nearest point and breaks exact ties by the smaller index, as OutlierVote does.
