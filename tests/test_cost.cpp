@@ -317,7 +317,9 @@ TEST_CASE_TEMPLATE("cost equals a brute-force evaluation of its definitions", B,
   // none), two observed segments, volumes posed at random (some hypotheses score the whole segment).
   std::mt19937 rng(11);
   const CloudBatch observed = random_batch(rng, 2, 2500);
-  const CloudBatch rendered = random_batch(rng, 40, 300);
+  CloudBatch rendered = random_batch(rng, 40, 300);
+  // A few packed colours with bits above 0xRRGGBB (ignored by unpack_rgb, outside FailedColours' keys).
+  for (std::size_t i = 0; i < rendered.size(); i += 10) rendered.rgb[i] |= 0xFF000000u;
   CostRequest req;
   req.footprints = {square(-0.02f, 0.02f, -0.015f, 0.025f, -0.01f, 0.02f)};
   std::uniform_real_distribution<float> u(-1.f, 1.f);

@@ -40,21 +40,26 @@ struct PairVisitor final : KnnIndex::RadiusVisitor {
   PairColorTest test;
   std::uint32_t* flags;
   std::uint64_t* nearest;
-  std::uint64_t* failed;  ///< per slot: a rendered colour that failed, or kNoPair
-  const std::uint32_t* rendered_rgb;
+  FailedColours failed_r, failed_o;  ///< this thread's, for J_r and J_o
   std::int32_t p;
+  std::uint32_t key;  ///< FailedColours::key of p's colour
   bool has_volume;
 
   void visit(std::int32_t o, float d2) override {
-    vote(o, d2);
+    const bool test_colour = test.use_color && test.any_rule && key != 0u;
+    std::uint32_t* known = test_colour && !vote.color_match ? failed_r.slot(o, key) : nullptr;
+    if (vote(o, d2, known && *known == key) && known) *known = key;
     const std::int32_t k = slot[o];
     if (k < 0) return;
     if (test.use_color && !test.any_rule) nearest[k] = std::min(nearest[k], pair_key(d2, p));
-    if (test.use_color && test.any_rule && !(flags[k] & kPairColorMatch) && failed[k] != rendered_rgb[p]) {
-      if (test.matches(observed_lab[o], rendered_lab, p))
-        flags[k] |= kPairColorMatch;
-      else
-        failed[k] = rendered_rgb[p];
+    if (test.use_color && test.any_rule && !(flags[k] & kPairColorMatch)) {
+      std::uint32_t* failed = key != 0u ? failed_o.slot(o, key) : nullptr;
+      if (!(failed && *failed == key)) {
+        if (test.matches(observed_lab[o], rendered_lab, p))
+          flags[k] |= kPairColorMatch;
+        else if (failed)
+          *failed = key;
+      }
     }
     flags[k] |= kPairFound;
   }
@@ -123,7 +128,10 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
   {
     std::vector<std::int32_t> slot(m.observed.size(), -1);
     std::vector<std::uint32_t> flags;
-    std::vector<std::uint64_t> nearest, failed;
+    std::vector<std::uint64_t> nearest;
+    // Per thread, so no atomics are needed; 0 = empty.
+    std::vector<std::uint32_t> failed_r(s.use_color ? m.observed.size() * FailedColours::kSlots : 0, 0u);
+    std::vector<std::uint32_t> failed_o(failed_r.size(), 0u);
 #pragma omp for schedule(dynamic, 1)
     for (std::int64_t hi = 0; hi < std::int64_t(n); ++hi) {
       const auto h = std::size_t(hi);
@@ -133,7 +141,6 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
       for (std::size_t k = 0; k < inside.size(); ++k) slot[std::size_t(inside[k])] = std::int32_t(k);
       flags.assign(inside.size(), 0u);
       nearest.assign(inside.size(), kNoPair);
-      failed.assign(inside.size(), kNoPair);
       CostBreakdown& b = result.hypotheses[h];
       for (std::int64_t i = rendered.offsets[h]; i < rendered.offsets[h + 1]; ++i) {
         const auto q = std::size_t(i);
@@ -142,7 +149,8 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
         v.delta2 = s.delta_m * s.delta_m, v.slot = slot.data(), v.observed_lab = m.lab.data();
         v.rendered_lab = rendered_lab.data();
         v.test = test, v.flags = flags.data(), v.nearest = nearest.data();
-        v.failed = failed.data(), v.rendered_rgb = rendered.rgb.data();
+        v.failed_r = {failed_r.data()}, v.failed_o = {failed_o.data()};
+        v.key = FailedColours::key(rendered.rgb[q]);
         v.p = std::int32_t(i), v.has_volume = !inside.empty();
         const float p[3] = {rendered.x[q], rendered.y[q], rendered.z[q]};
         m.index.radius_visit(p, std::int32_t(seg), v);

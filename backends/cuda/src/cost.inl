@@ -55,7 +55,7 @@ struct PairRecords {
   const std::int64_t* offsets;
   std::uint32_t* flags;
   std::uint64_t* nearest;
-  std::uint64_t* failed;  ///< a rendered colour that failed the colour test, or kNoPair
+  FailedColours failed_r, failed_o;  ///< shared by all threads (relaxed atomics)
   const std::uint32_t* rendered_rgb;
   const Lab<float>* observed_lab;
   const Lab<float>* rendered_lab;
@@ -68,19 +68,27 @@ struct PairVisitor {
   const PairRecords* r;
   std::int64_t h;
   std::int32_t p;
+  std::uint32_t key;  ///< FailedColours::key of p's colour
   PERCH2_HD void operator()(std::int32_t o, float d2) {
-    vote(o, d2);
-    const std::uint64_t key = volume_key(h, o);
-    std::int64_t lo = r->offsets[h], len = r->offsets[h + 1] - lo;  // lower bound of key
+    const PairColorTest& t = r->test;
+    const bool test_colour = t.use_color && t.any_rule && key != 0u;
+    if (test_colour && !vote.color_match) {
+      cuda::atomic_ref<std::uint32_t, cuda::thread_scope_device> known(*r->failed_r.slot(o, key));
+      if (vote(o, d2, known.load(cuda::memory_order_relaxed) == key))
+        known.store(key, cuda::memory_order_relaxed);
+    } else {
+      vote(o, d2);
+    }
+    const std::uint64_t okey = volume_key(h, o);
+    std::int64_t lo = r->offsets[h], len = r->offsets[h + 1] - lo;  // lower bound of okey
     while (len > 0) {
       const std::int64_t half = len / 2;
-      if (r->keys[lo + half] < key)
+      if (r->keys[lo + half] < okey)
         lo += half + 1, len -= half + 1;
       else
         len = half;
     }
-    if (lo == r->offsets[h + 1] || r->keys[lo] != key) return;
-    const PairColorTest& t = r->test;
+    if (lo == r->offsets[h + 1] || r->keys[lo] != okey) return;
     cuda::atomic_ref<std::uint32_t, cuda::thread_scope_device> flags(r->flags[lo]);
     std::uint32_t set = kPairFound;
     if (t.use_color && !t.any_rule) {
@@ -90,16 +98,17 @@ struct PairVisitor {
       if (k < ref.load(cuda::memory_order_relaxed)) ref.fetch_min(k, cuda::memory_order_relaxed);
     }
     const std::uint32_t now = flags.load(cuda::memory_order_relaxed);
-    if (t.use_color && t.any_rule && !(now & kPairColorMatch)) {
-      auto* word = reinterpret_cast<unsigned long long*>(r->failed + lo);
-      cuda::atomic_ref<unsigned long long, cuda::thread_scope_device> failed(*word);
-      const unsigned long long colour = r->rendered_rgb[p];
-      if (failed.load(cuda::memory_order_relaxed) != colour) {
+    if (test_colour && !(now & kPairColorMatch)) {
+      cuda::atomic_ref<std::uint32_t, cuda::thread_scope_device> failed(*r->failed_o.slot(o, key));
+      if (failed.load(cuda::memory_order_relaxed) != key) {
         if (t.matches(r->observed_lab[o], r->rendered_lab, p))
           set |= kPairColorMatch;
         else
-          failed.store(colour, cuda::memory_order_relaxed);
+          failed.store(key, cuda::memory_order_relaxed);
       }
+    } else if (t.use_color && t.any_rule && !(now & kPairColorMatch) &&
+               t.matches(r->observed_lab[o], r->rendered_lab, p)) {
+      set |= kPairColorMatch;  // a colour outside 0xRRGGBB: no key, no memory
     }
     if ((now | set) != now) flags.fetch_or(set, cuda::memory_order_relaxed);
   }
@@ -278,11 +287,13 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   thrust::sort(thrust::device, ptr(keys), ptr(keys) + num_pairs);  // each hypothesis' range by point
   thrust::device_vector<std::uint32_t> flags(static_cast<std::size_t>(num_pairs), 0u);
   thrust::device_vector<std::uint64_t> nearest(static_cast<std::size_t>(num_pairs), kNoPair);
-  thrust::device_vector<std::uint64_t> failed(static_cast<std::size_t>(num_pairs), kNoPair);
-  const PairRecords records{
-      ptr(keys),    ptr(pair_offsets), ptr(flags),
-      ptr(nearest), ptr(failed),       ptr(rgb),
-      ptr(m.lab),   ptr(rlab),         {s.tau_c, s.lightness_factor, s.use_color, params.any_rule}};
+  const std::size_t memo = s.use_color ? m.lab.size() * FailedColours::kSlots : 0;
+  thrust::device_vector<std::uint32_t> failed_r(memo, 0u), failed_o(memo, 0u);
+  const PairRecords records{ptr(keys),       ptr(pair_offsets),
+                            ptr(flags),      ptr(nearest),
+                            {ptr(failed_r)}, {ptr(failed_o)},
+                            ptr(rgb),        ptr(m.lab),
+                            ptr(rlab),       {s.tau_c, s.lightness_factor, s.use_color, params.any_rule}};
 
   // J_r, filling the pair records; then J_o from them.
   thrust::device_vector<std::uint8_t> rclass(static_cast<std::size_t>(nr));
