@@ -197,8 +197,8 @@ struct PairColorTest {
   bool use_color;
   bool any_rule;
 
-  /// Whether pair (observed colour lab, rendered point p) can still change the flags: with the
-  /// AnyNeighbour rule, the colour test of p (observed colour first, as the OutlierVote of o would run it).
+  /// The colour test of pair (observed colour lab, rendered point p): CIEDE2000 with the observed colour
+  /// first, as the OutlierVote of the observed point would run it.
   PERCH2_HD bool matches(Lab<float> lab, const Lab<float>* rendered, std::int32_t p) const {
     return ciede2000<float>(lab, rendered[p], kL) <= tau_c;
   }
