@@ -3,10 +3,12 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <random>
 
 #include "perch2/cost/cost.hpp"
+#include "perch2/knn/scan.hpp"
 #include "test_support.hpp"
 
 using namespace perch2;
@@ -284,6 +286,157 @@ TEST_CASE("cost: cpu and thrust_omp agree exactly on random data") {
         CHECK(depth_outliers > 100);
         CHECK((colour_outliers > 100) == colour);
       }
+}
+
+namespace {
+
+/// The definitions evaluated by brute force: every pair of points compared (knn_sq_distance <= delta^2),
+/// every observed point of the segment tested against the volume, OutlierVote in both directions.
+CostResult brute_force_cost(const CloudBatch& observed, const CloudBatch& rendered, const CostRequest& req,
+                            const CostSettings& s) {
+  const std::vector<Lab<float>> olab = lab_colors(observed, s.shading_invariant),
+                                rlab = lab_colors(rendered, s.shading_invariant);
+  const PackedVolumes vol = pack_volumes(req);
+  const bool any = s.color_rule == ColorRule::AnyNeighbour;
+  const float delta2 = s.delta_m * s.delta_m;
+  auto classify = [&](Vec3f p, Lab<float> lab, const CloudBatch& other,
+                      const std::vector<Lab<float>>& other_lab, std::int64_t b, std::int64_t e) {
+    OutlierVote v{lab, other_lab.data(), s.tau_c, s.lightness_factor, s.use_color, any};
+    for (std::int64_t j = b; j < e; ++j) {
+      const float d2 = knn_sq_distance(p, other.point(std::size_t(j)));
+      if (d2 <= delta2) v(std::int32_t(j), d2);
+    }
+    return v.result();
+  };
+  CostResult out;
+  out.hypotheses.resize(rendered.num_clouds());
+  for (std::size_t h = 0; h < rendered.num_clouds(); ++h) {
+    CostBreakdown& b = out.hypotheses[h];
+    const auto seg = std::size_t(req.observed_segment[h]);
+    const std::int64_t ob = observed.offsets[seg], oe = observed.offsets[seg + 1];
+    const std::int64_t rb = rendered.offsets[h], re = rendered.offsets[h + 1];
+    for (std::int64_t i = rb; i < re; ++i) {
+      const std::uint8_t c =
+          classify(rendered.point(std::size_t(i)), rlab[std::size_t(i)], observed, olab, ob, oe);
+      b.rendered_inliers += c == kInlier, b.rendered_depth_outliers += c == kDepthOutlier;
+      b.rendered_color_outliers += c == kColorOutlier;
+    }
+    for (std::int64_t i = ob; i < oe; ++i) {
+      const Vec3f p = observed.point(std::size_t(i));
+      if (vol.views[h].radius_m >= 0.f && !inside_volume(vol.views[h], vol.vertices.data(), p)) continue;
+      ++b.observed_in_volume;
+      const std::uint8_t c = classify(p, olab[std::size_t(i)], rendered, rlab, rb, re);
+      b.observed_depth_outliers += c == kDepthOutlier, b.observed_color_outliers += c == kColorOutlier;
+    }
+    b.rendered_points = std::int32_t(re - rb);
+    finish_cost(b, s);
+  }
+  return out;
+}
+
+/// Number of hypotheses whose breakdowns differ in any count or the total.
+int count_differences(const CostResult& a, const CostResult& b) {
+  int differences = 0;
+  for (std::size_t h = 0; h < a.size(); ++h) {
+    const CostBreakdown &x = a.hypotheses[h], &y = b.hypotheses[h];
+    differences += x.rendered_points != y.rendered_points || x.rendered_inliers != y.rendered_inliers ||
+                   x.rendered_depth_outliers != y.rendered_depth_outliers ||
+                   x.rendered_color_outliers != y.rendered_color_outliers ||
+                   x.observed_in_volume != y.observed_in_volume ||
+                   x.observed_depth_outliers != y.observed_depth_outliers ||
+                   x.observed_color_outliers != y.observed_color_outliers || x.total != y.total;
+  }
+  return differences;
+}
+
+}  // namespace
+
+TEST_CASE_TEMPLATE("cost equals a brute-force evaluation of its definitions", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  // Random clouds in a 6 cm cube (dense enough that most points have several neighbours within delta, some
+  // none), two observed segments, volumes posed at random (some hypotheses score the whole segment).
+  std::mt19937 rng(11);
+  const CloudBatch observed = random_batch(rng, 2, 2500);
+  CloudBatch rendered = random_batch(rng, 40, 300);
+  // A few packed colours with bits above 0xRRGGBB (ignored by unpack_rgb, outside FailedColours' keys).
+  for (std::size_t i = 0; i < rendered.size(); i += 10) rendered.rgb[i] |= 0xFF000000u;
+  CostRequest req;
+  req.footprints = {square(-0.02f, 0.02f, -0.015f, 0.025f, -0.01f, 0.02f)};
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  for (int h = 0; h < 40; ++h) {
+    const float angle = 3.f * u(rng), tx = 0.01f * u(rng), ty = 0.01f * u(rng), tz = 0.8f + 0.01f * u(rng);
+    Pose T = Pose::Identity();
+    T.linear() = Eigen::AngleAxisf(angle, Eigen::Vector3f(0.3f, 0.2f, 1.f).normalized()).toRotationMatrix();
+    T.translation() = Eigen::Vector3f(tx, ty, tz);
+    req.add(h % 2, h % 4 == 3 ? -1 : 0, T);
+  }
+  const typename B::Cost cost(observed);
+  for (const bool colour : {true, false})
+    for (const ColorRule rule : {ColorRule::Nearest, ColorRule::AnyNeighbour}) {
+      CostSettings s;
+      s.use_color = colour, s.color_rule = rule, s.delta_m = 0.004f;
+      s.shading_invariant = rule == ColorRule::AnyNeighbour;  // both comparison colours, both rules below
+      CAPTURE(colour);
+      CAPTURE(int(rule));
+      const CostResult expected = brute_force_cost(observed, rendered, req, s);
+      CHECK(count_differences(cost.evaluate(rendered, req, s), expected) == 0);
+      int colour_outliers = 0, in_volume = 0;
+      for (const auto& b : expected.hypotheses)
+        colour_outliers += b.observed_color_outliers, in_volume += b.observed_in_volume;
+      CHECK(in_volume > 1000);
+      CHECK((colour_outliers > 50) == colour);
+    }
+}
+
+TEST_CASE_TEMPLATE("cost at the delta boundary, volume edges and nearest-neighbour ties", B,
+                   PERCH2_CPU_RUNNABLE_BACKENDS) {
+  // delta = 0.25 m and coordinates in multiples of 1/8 m make every squared distance exact, so pairs sit
+  // exactly at delta (neighbours: the test is inclusive) or one step beyond it.
+  CostSettings s;
+  s.delta_m = 0.25f;
+  auto cloud = [](const std::vector<std::array<float, 3>>& pts, const std::vector<std::uint32_t>& rgb) {
+    CloudBatch c;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      c.x.push_back(pts[i][0]), c.y.push_back(pts[i][1]), c.z.push_back(pts[i][2]);
+      c.rgb.push_back(rgb[i]), c.pixel.push_back(-1), c.cloud.push_back(0);
+    }
+    c.offsets = {0, std::int64_t(c.size())};
+    return c;
+  };
+  // Observed: o0 at the origin (red), o1 at x = 1 (red), o2 at x = 2 (blue).
+  const CloudBatch observed = cloud({{0.f, 0.f, 2.f}, {1.f, 0.f, 2.f}, {2.f, 0.f, 2.f}}, {kRed, kRed, kBlue});
+  // Rendered: r0 exactly delta from o0 (blue), r1 exactly delta from o0 on the other side (red): o0's two
+  // neighbours tie at the same distance; r2 0.375 m from o1 (beyond delta); r3 exactly delta from o2 (red).
+  const CloudBatch rendered =
+      cloud({{0.25f, 0.f, 2.f}, {-0.25f, 0.f, 2.f}, {1.375f, 0.f, 2.f}, {2.f, 0.25f, 2.f}},
+            {kBlue, kRed, kRed, kRed});
+  const typename B::Cost cost(observed);
+  CostRequest whole = whole_segment(1);
+  // A volume whose face passes exactly through o1 (boundary included) and excludes o2.
+  CostRequest edge;
+  edge.footprints = {square(-0.5f, 1.f, -0.5f, 0.5f, 1.5f, 2.5f)};
+  edge.add(0, 0, Pose::Identity());
+  for (const ColorRule rule : {ColorRule::Nearest, ColorRule::AnyNeighbour})
+    for (const CostRequest* req : {&whole, &edge}) {
+      s.color_rule = rule;
+      CAPTURE(int(rule));
+      const CostResult expected = brute_force_cost(observed, rendered, *req, s);
+      CHECK(count_differences(cost.evaluate(rendered, *req, s), expected) == 0);
+    }
+  // The definitions themselves, spelled out: o0's tied neighbours are r0 (blue, index 0) and r1 (red), so
+  // Nearest (smaller index wins) calls it a colour outlier and AnyNeighbour an inlier.
+  s.color_rule = ColorRule::Nearest;
+  const CostBreakdown n = cost.evaluate(rendered, edge, s).hypotheses[0];
+  CHECK(n.observed_in_volume == 2);       // o0 and o1 (on the face)
+  CHECK(n.observed_color_outliers == 1);  // o0
+  CHECK(n.observed_depth_outliers == 1);  // o1: r2 is beyond delta
+  s.color_rule = ColorRule::AnyNeighbour;
+  const CostBreakdown a = cost.evaluate(rendered, whole, s).hypotheses[0];
+  CHECK(a.observed_in_volume == 3);
+  CHECK(a.observed_color_outliers == 1);  // o2: its only neighbour r3 is red
+  CHECK(a.observed_depth_outliers == 1);  // o1
+  CHECK(a.rendered_depth_outliers == 1);  // r2
+  CHECK(a.rendered_color_outliers == 2);  // r0 (blue on red o0), r3 (red on blue o2)
 }
 
 TEST_CASE_TEMPLATE("cost rejects bad input with a clear error", B, PERCH2_CPU_RUNNABLE_BACKENDS) {

@@ -1,7 +1,8 @@
-// Reference cost stage: per point, the neighbours within delta from an exact FLANN radius search
-// (cpu::KnnIndex::radius_visit), classified by the shared OutlierVote; the search stops once the class is
-// decided. The observed points inside each hypothesis' volume are found among those within its bounding
-// sphere (the same kd-tree).
+// Reference cost stage, one hypothesis per task: the observed points inside its volume (found among those
+// within the volume's bounding sphere by the observed kd-tree), then one exact FLANN radius search per
+// rendered point (cpu::KnnIndex::radius_visit) over the observed points within delta. Each search classifies
+// its rendered point with the shared OutlierVote (J_r) and fills the pair records of the volume's observed
+// points it meets, from which J_o follows without searching the rendered points (PairColorTest).
 #include "perch2/cpu/cost.hpp"
 
 #include <algorithm>
@@ -12,20 +13,6 @@
 namespace perch2::cpu {
 
 namespace {
-
-/// OutlierVote over an exact radius search that stops as soon as the point's class is decided: any
-/// neighbour decides a depth-only inlier, a colour match decides an AnyNeighbour inlier, and under the
-/// Nearest rule only points no farther than the nearest so far (ties included) can change the outcome.
-struct VoteVisitor final : KnnIndex::RadiusVisitor {
-  OutlierVote vote;
-  float delta2;
-  VoteVisitor(const OutlierVote& v, float d2) : vote(v), delta2(d2) {}
-  void visit(std::int32_t index, float d2) override { vote(index, d2); }
-  float bound_m2() const override {
-    if (vote.done()) return -1.f;
-    return vote.found && !vote.any_rule ? vote.best_d2 : delta2;
-  }
-};
 
 /// Lists the observed points inside a volume among those within its bounding sphere.
 struct InsideVisitor final : KnnIndex::RadiusVisitor {
@@ -41,27 +28,66 @@ struct InsideVisitor final : KnnIndex::RadiusVisitor {
   float bound_m2() const override { return volume.radius_m * volume.radius_m; }
 };
 
-/// Point classes (PointClass) of every query point against the index (cloud c searches segment
-/// query_segment[c]).
-std::vector<std::uint8_t> classify(const KnnIndex& index, const CloudBatch& queries,
-                                   const std::vector<std::int32_t>& query_segment,
-                                   const std::vector<Lab<float>>& query_lab,
-                                   const std::vector<Lab<float>>& target_lab, const CostSettings& s) {
-  std::vector<std::uint8_t> out(queries.size(), kDepthOutlier);
-  const OutlierVote blank{{},          target_lab.data(),
-                          s.tau_c,     s.lightness_factor,
-                          s.use_color, s.color_rule == ColorRule::AnyNeighbour};
-#pragma omp parallel for schedule(dynamic, 1)
-  for (std::int64_t c = 0; c < std::int64_t(queries.num_clouds()); ++c)
-    for (std::int64_t i = queries.offsets[std::size_t(c)]; i < queries.offsets[std::size_t(c) + 1]; ++i) {
-      const auto q = std::size_t(i);
-      VoteVisitor v(blank, s.delta_m * s.delta_m);
-      v.vote.lab = query_lab[q];
-      const float p[3] = {queries.x[q], queries.y[q], queries.z[q]};
-      index.radius_visit(p, query_segment[std::size_t(c)], v);
-      out[q] = v.vote.result();
+/// The J_r search of one rendered point p of hypothesis h, which also fills the J_o records of the observed
+/// points of V(h) it meets (see PairColorTest in perch2/cost/cost.hpp). slot[o] is o's position in V(h)'s
+/// list, or -1. With an empty V(h) the search stops as soon as p's class is decided.
+struct PairVisitor final : KnnIndex::RadiusVisitor {
+  OutlierVote vote;
+  float delta2;
+  const std::int32_t* slot;
+  const Lab<float>* observed_lab;
+  const Lab<float>* rendered_lab;
+  PairColorTest test;
+  std::uint32_t* flags;
+  std::uint64_t* nearest;
+  FailedColours failed_r, failed_o;  ///< this thread's, for J_r and J_o
+  std::int32_t p;
+  std::uint32_t key;  ///< FailedColours::key of p's colour
+  bool has_volume;
+
+  void visit(std::int32_t o, float d2) override {
+    const bool test_colour = test.use_color && test.any_rule && key != 0u;
+    std::uint32_t* known = test_colour && !vote.color_match ? failed_r.slot(o, key) : nullptr;
+    if (vote(o, d2, known && *known == key) && known) *known = key;
+    const std::int32_t k = slot[o];
+    if (k < 0) return;
+    if (test.use_color && !test.any_rule) nearest[k] = std::min(nearest[k], pair_key(d2, p));
+    if (test.use_color && test.any_rule && !(flags[k] & kPairColorMatch)) {
+      std::uint32_t* failed = key != 0u ? failed_o.slot(o, key) : nullptr;
+      if (!(failed && *failed == key)) {
+        if (test.matches(observed_lab[o], rendered_lab, p))
+          flags[k] |= kPairColorMatch;
+        else if (failed)
+          *failed = key;
+      }
     }
-  return out;
+    flags[k] |= kPairFound;
+  }
+  float bound_m2() const override {
+    if (has_volume) return delta2;
+    if (vote.done()) return -1.f;
+    return vote.found && !vote.any_rule ? vote.best_d2 : delta2;
+  }
+};
+
+/// Lists the observed points of segment seg inside volume v, in index order.
+std::vector<std::int32_t> volume_points(const KnnIndex& index, const CloudBatch& observed, std::size_t seg,
+                                        const VolumeView& v, const Vec2f* vertices) {
+  std::vector<std::int32_t> list;
+  if (v.radius_m < 0.f) {
+    for (std::int64_t i = observed.offsets[seg]; i < observed.offsets[seg + 1]; ++i)
+      list.push_back(std::int32_t(i));
+    return list;
+  }
+  InsideVisitor visit(observed, v, vertices, list);
+  const float centre[3] = {v.centre_cam.x, v.centre_cam.y, v.centre_cam.z};
+  index.radius_visit(centre, std::int32_t(seg), visit);
+  std::sort(list.begin(), list.end());  // index order, as a scan of the segment would list them
+  return list;
+}
+
+void count_class(std::uint8_t c, std::int32_t& inliers, std::int32_t& depth, std::int32_t& color) {
+  inliers += c == kInlier, depth += c == kDepthOutlier, color += c == kColorOutlier;
 }
 
 }  // namespace
@@ -94,61 +120,59 @@ CostResult Cost::evaluate(const CloudBatch& rendered, const CostRequest& request
   validate_cost_request(rendered, request, num_segments(), s);
   const std::size_t n = rendered.num_clouds();
   const std::vector<Lab<float>> rendered_lab = lab_colors(rendered, s.shading_invariant);
+  const PackedVolumes vol = pack_volumes(request);
+  const bool any_rule = s.color_rule == ColorRule::AnyNeighbour;
+  const OutlierVote blank{{}, m.observed_lab(s).data(), s.tau_c, s.lightness_factor, s.use_color, any_rule};
+  const PairColorTest test{s.tau_c, s.lightness_factor, s.use_color, any_rule};
   CostResult result;
   result.hypotheses.resize(n);
 
-  // J_r: every rendered point against the observed points of its hypothesis' segment.
-  const std::vector<std::uint8_t> rclass =
-      classify(m.index, rendered, request.observed_segment, rendered_lab, m.observed_lab(s), s);
-
-  // J_o: the observed points inside each hypothesis' volume, against that hypothesis' rendered points.
-  const PackedVolumes vol = pack_volumes(request);
-  std::vector<std::vector<std::int32_t>> inside(n);
-#pragma omp parallel for schedule(dynamic, 8)
-  for (std::int64_t h = 0; h < std::int64_t(n); ++h) {
-    const VolumeView& v = vol.views[std::size_t(h)];
-    const std::size_t seg = std::size_t(request.observed_segment[std::size_t(h)]);
-    auto& list = inside[std::size_t(h)];
-    if (v.radius_m < 0.f) {
-      for (std::int64_t i = m.observed.offsets[seg]; i < m.observed.offsets[seg + 1]; ++i)
-        list.push_back(std::int32_t(i));
-      continue;
+  // Per hypothesis: list the observed points of its volume, then one radius search per rendered point
+  // classifies that point (J_r) and fills the volume points' pair records (J_o).
+#pragma omp parallel
+  {
+    std::vector<std::int32_t> slot(m.observed.size(), -1);
+    std::vector<std::uint32_t> flags;
+    std::vector<std::uint64_t> nearest;
+    // Per thread, so no atomics are needed; 0 = empty.
+    std::vector<std::uint32_t> failed_r(s.use_color ? m.observed.size() * FailedColours::kSlots : 0, 0u);
+    std::vector<std::uint32_t> failed_o(failed_r.size(), 0u);
+#pragma omp for schedule(dynamic, 1)
+    for (std::int64_t hi = 0; hi < std::int64_t(n); ++hi) {
+      const auto h = std::size_t(hi);
+      const auto seg = std::size_t(request.observed_segment[h]);
+      const std::vector<std::int32_t> inside =
+          volume_points(m.index, m.observed, seg, vol.views[h], vol.vertices.data());
+      for (std::size_t k = 0; k < inside.size(); ++k) slot[std::size_t(inside[k])] = std::int32_t(k);
+      flags.assign(inside.size(), 0u);
+      nearest.assign(inside.size(), kNoPair);
+      CostBreakdown& b = result.hypotheses[h];
+      for (std::int64_t i = rendered.offsets[h]; i < rendered.offsets[h + 1]; ++i) {
+        const auto q = std::size_t(i);
+        PairVisitor v{};
+        v.vote = blank, v.vote.lab = rendered_lab[q];
+        v.delta2 = s.delta_m * s.delta_m, v.slot = slot.data(), v.observed_lab = m.observed_lab(s).data();
+        v.rendered_lab = rendered_lab.data();
+        v.test = test, v.flags = flags.data(), v.nearest = nearest.data();
+        v.failed_r = {failed_r.data()}, v.failed_o = {failed_o.data()};
+        v.key = FailedColours::key(rendered.rgb[q]);
+        v.p = std::int32_t(i), v.has_volume = !inside.empty();
+        const float p[3] = {rendered.x[q], rendered.y[q], rendered.z[q]};
+        m.index.radius_visit(p, std::int32_t(seg), v);
+        count_class(v.vote.result(), b.rendered_inliers, b.rendered_depth_outliers,
+                    b.rendered_color_outliers);
+      }
+      std::int32_t unused = 0;
+      for (std::size_t k = 0; k < inside.size(); ++k) {
+        const std::size_t o = std::size_t(inside[k]);
+        count_class(test.result(flags[k], nearest[k], m.observed_lab(s)[o], rendered_lab.data()), unused,
+                    b.observed_depth_outliers, b.observed_color_outliers);
+        slot[o] = -1;
+      }
+      b.rendered_points = std::int32_t(rendered.cloud_size(h));
+      b.observed_in_volume = std::int32_t(inside.size());
+      finish_cost(b, s);
     }
-    InsideVisitor visit(m.observed, v, vol.vertices.data(), list);
-    const float centre[3] = {v.centre_cam.x, v.centre_cam.y, v.centre_cam.z};
-    m.index.radius_visit(centre, std::int32_t(seg), visit);
-    std::sort(list.begin(), list.end());  // index order, as a scan of the segment would list them
-  }
-  CloudBatch queries;
-  std::vector<Lab<float>> query_lab;
-  for (std::size_t h = 0; h < n; ++h) {
-    for (const std::int32_t i : inside[h]) {
-      queries.x.push_back(m.observed.x[std::size_t(i)]);
-      queries.y.push_back(m.observed.y[std::size_t(i)]);
-      queries.z.push_back(m.observed.z[std::size_t(i)]);
-      query_lab.push_back(m.observed_lab(s)[std::size_t(i)]);
-    }
-    queries.offsets.push_back(std::int64_t(queries.x.size()));
-  }
-  std::vector<std::int32_t> own(n);
-  for (std::size_t h = 0; h < n; ++h) own[h] = std::int32_t(h);
-  const KnnIndex rendered_index(rendered);  // one kd-tree per hypothesis
-  const std::vector<std::uint8_t> oclass = classify(rendered_index, queries, own, query_lab, rendered_lab, s);
-
-  for (std::size_t h = 0; h < n; ++h) {
-    CostBreakdown& b = result.hypotheses[h];
-    for (std::int64_t i = rendered.offsets[h]; i < rendered.offsets[h + 1]; ++i) {
-      const std::uint8_t c = rclass[std::size_t(i)];
-      b.rendered_inliers += c == kInlier, b.rendered_depth_outliers += c == kDepthOutlier;
-      b.rendered_color_outliers += c == kColorOutlier;
-    }
-    b.rendered_points = std::int32_t(rendered.cloud_size(h));
-    b.observed_in_volume = std::int32_t(queries.cloud_size(h));
-    for (std::int64_t i = queries.offsets[h]; i < queries.offsets[h + 1]; ++i) {
-      const std::uint8_t c = oclass[std::size_t(i)];
-      b.observed_depth_outliers += c == kDepthOutlier, b.observed_color_outliers += c == kColorOutlier;
-    }
-    finish_cost(b, s);
   }
   return result;
 }

@@ -72,12 +72,17 @@ class VisitorResultSet final : public flann::ResultSet<float> {
   }
   float worstDist() const override {
     const float b = v_.bound_m2();
-    return b < 0.f ? -1.f : std::nextafter(b, std::numeric_limits<float>::infinity());
+    if (b != bound_) {  // FLANN asks at every node; the bound rarely changes (nextafter is not free)
+      bound_ = b;
+      worst_ = b < 0.f ? -1.f : std::nextafter(b, std::numeric_limits<float>::infinity());
+    }
+    return worst_;
   }
 
  private:
   KnnIndex::RadiusVisitor& v_;
   std::int64_t base_;
+  mutable float bound_ = std::numeric_limits<float>::quiet_NaN(), worst_ = -1.f;  // NaN: never equal
 };
 }  // namespace
 

@@ -1,10 +1,13 @@
 // Thrust cost stage. Included by cost.cu (nvcc, CUDA system) and cost_omp.cpp (g++, OpenMP system); the
 // algorithm text lives here once, over the PERCH2_HD pieces of perch2/cost/cost.hpp and perch2/knn/grid.hpp.
-//   J_r: one thread per rendered point visits the observed grid within delta (OutlierVote).
-//   J_o: one thread per hypothesis counts, then lists, the observed points inside its volume (visiting the
-//        observed grid within the volume's bounding sphere); one thread per listed (hypothesis, point) pair
-//        visits that hypothesis' rendered points (a grid over the rendered batch, one segment per
-//        hypothesis) within delta.
+//   Volumes: one thread per hypothesis counts, then lists, the observed points inside its volume (visiting
+//   the
+//            observed grid within the volume's bounding sphere) as keys (hypothesis, point), sorted.
+//   J_r:     one thread per rendered point visits the observed grid within delta (OutlierVote), and fills the
+//            pair records of the observed points of its hypothesis' volume it meets (binary search in the
+//            hypothesis' sorted keys; atomic or / min, see PairColorTest), so J_o needs no search and no
+//            index over the rendered points.
+//   J_o:     one thread per listed (hypothesis, point) classifies it from its record.
 //   One thread per hypothesis sums its point classes.
 #include <thrust/copy.h>
 #include <thrust/device_vector.h>
@@ -12,7 +15,9 @@
 #include <thrust/for_each.h>
 #include <thrust/iterator/counting_iterator.h>
 #include <thrust/scan.h>
+#include <thrust/sort.h>
 #include <thrust/transform.h>
+#include <cuda/atomic>
 
 #include "perch2/core/segments.hpp"
 #include "perch2/cuda/cost.hpp"
@@ -40,14 +45,80 @@ struct VoteParams {
   bool use_color, any_rule;
 };
 
-PERCH2_HD inline std::uint8_t classify(const Side& other, int segment, Vec3f p, Lab<float> lab,
-                                       const VoteParams& s) {
-  OutlierVote vote{lab, other.lab, s.tau_c, s.kL, s.use_color, s.any_rule};
-  grid_radius_visit(other.grid, segment, p, s.delta_m, vote);
-  return vote.result();
+/// (hypothesis, observed point) as one sortable key.
+PERCH2_HD inline std::uint64_t volume_key(std::int64_t h, std::int32_t o) {
+  return (std::uint64_t(h) << 32) | std::uint32_t(o);
 }
 
-/// J_r: class of rendered point i (its cloud found from the offsets) against the observed segment.
+/// The pair records of the observed points of the volumes (one per listed key).
+struct PairRecords {
+  const std::uint64_t* keys;  ///< sorted; hypothesis h owns [offsets[h], offsets[h + 1])
+  const std::int64_t* offsets;
+  std::uint32_t* flags;
+  std::uint64_t* nearest;
+  FailedColours failed_r, failed_o;  ///< shared by all threads (relaxed atomics)
+  const std::uint32_t* rendered_rgb;
+  const Lab<float>* observed_lab;
+  const Lab<float>* rendered_lab;
+  PairColorTest test;
+};
+
+/// OutlierVote of rendered point p plus the pair-record updates of the volume points it meets.
+struct PairVisitor {
+  OutlierVote vote;
+  const PairRecords* r;
+  std::int64_t h;
+  std::int32_t p;
+  std::uint32_t key;  ///< FailedColours::key of p's colour
+  PERCH2_HD void operator()(std::int32_t o, float d2) {
+    const PairColorTest& t = r->test;
+    const bool test_colour = t.use_color && t.any_rule && key != 0u;
+    if (test_colour && !vote.color_match) {
+      cuda::atomic_ref<std::uint32_t, cuda::thread_scope_device> known(*r->failed_r.slot(o, key));
+      if (vote(o, d2, known.load(cuda::memory_order_relaxed) == key))
+        known.store(key, cuda::memory_order_relaxed);
+    } else {
+      vote(o, d2);
+    }
+    const std::uint64_t okey = volume_key(h, o);
+    std::int64_t lo = r->offsets[h], len = r->offsets[h + 1] - lo;  // lower bound of okey
+    while (len > 0) {
+      const std::int64_t half = len / 2;
+      if (r->keys[lo + half] < okey)
+        lo += half + 1, len -= half + 1;
+      else
+        len = half;
+    }
+    if (lo == r->offsets[h + 1] || r->keys[lo] != okey) return;
+    cuda::atomic_ref<std::uint32_t, cuda::thread_scope_device> flags(r->flags[lo]);
+    std::uint32_t set = kPairFound;
+    if (t.use_color && !t.any_rule) {
+      const std::uint64_t k = pair_key(d2, p);
+      auto* word = reinterpret_cast<unsigned long long*>(r->nearest + lo);
+      cuda::atomic_ref<unsigned long long, cuda::thread_scope_device> ref(*word);
+      if (k < ref.load(cuda::memory_order_relaxed)) ref.fetch_min(k, cuda::memory_order_relaxed);
+    }
+    const std::uint32_t now = flags.load(cuda::memory_order_relaxed);
+    if (test_colour && !(now & kPairColorMatch)) {
+      cuda::atomic_ref<std::uint32_t, cuda::thread_scope_device> failed(*r->failed_o.slot(o, key));
+      if (failed.load(cuda::memory_order_relaxed) != key) {
+        if (t.matches(r->observed_lab[o], r->rendered_lab, p))
+          set |= kPairColorMatch;
+        else
+          failed.store(key, cuda::memory_order_relaxed);
+      }
+    } else if (t.use_color && t.any_rule && !(now & kPairColorMatch) &&
+               t.matches(r->observed_lab[o], r->rendered_lab, p)) {
+      set |= kPairColorMatch;  // a colour outside 0xRRGGBB: no key, no memory
+    }
+    if ((now | set) != now) flags.fetch_or(set, cuda::memory_order_relaxed);
+  }
+  /// Only a hypothesis without volume points may stop at the point's own decision.
+  PERCH2_HD bool done() const { return r->offsets[h + 1] == r->offsets[h] && vote.done(); }
+};
+
+/// J_r: class of rendered point i (its cloud found from the offsets) against the observed segment; fills
+/// the pair records.
 struct ClassifyRendered {
   Side observed;
   VoteParams params;
@@ -56,9 +127,14 @@ struct ClassifyRendered {
   const std::int64_t* offsets;
   int num_clouds;
   const std::int32_t* segment_of_cloud;
+  PairRecords records;
   PERCH2_HD std::uint8_t operator()(std::int64_t i) const {
     const int c = find_segment(offsets, num_clouds, i);
-    return classify(observed, segment_of_cloud[c], points[i], lab[i], params);
+    const VoteParams& s = params;
+    PairVisitor visit{
+        {lab[i], observed.lab, s.tau_c, s.kL, s.use_color, s.any_rule}, &records, c, std::int32_t(i)};
+    grid_radius_visit(observed.grid, segment_of_cloud[c], points[i], s.delta_m, visit);
+    return visit.vote.result();
   }
 };
 
@@ -67,16 +143,18 @@ struct InsideVisitor {
   const Vec3f* points;
   const VolumeView* volume;
   const Vec2f* vertices;
-  std::int32_t* list;
+  std::uint64_t* list;
+  std::int64_t h;
   std::int64_t n = 0;
   PERCH2_HD void operator()(std::int32_t index, float) {
     if (!inside_volume(*volume, vertices, points[index])) return;
-    if (list) list[n] = index;
+    if (list) list[n] = volume_key(h, index);
     ++n;
   }
 };
 
-/// The observed points in hypothesis h's volume: counted (out == nullptr) or written from out[offsets[h]].
+/// The observed points in hypothesis h's volume: counted (out == nullptr) or written as volume keys from
+/// out[offsets[h]].
 struct VolumePoints {
   GridView grid;
   const Vec3f* points;
@@ -85,36 +163,30 @@ struct VolumePoints {
   const Vec2f* vertices;
   const std::int32_t* segment_of_cloud;
   const std::int64_t* out_offsets;
-  std::int32_t* out;
+  std::uint64_t* out;
   PERCH2_HD std::int64_t operator()(std::int64_t h) const {
     const VolumeView& v = volumes[h];
     const int s = segment_of_cloud[h];
-    std::int32_t* list = out ? out + out_offsets[h] : nullptr;
+    std::uint64_t* list = out ? out + out_offsets[h] : nullptr;
     if (v.radius_m < 0.f) {  // the whole segment
       const std::int64_t b = segment_offsets[s], e = segment_offsets[s + 1];
       if (list)
-        for (std::int64_t i = b; i < e; ++i) list[i - b] = std::int32_t(i);
+        for (std::int64_t i = b; i < e; ++i) list[i - b] = volume_key(h, std::int32_t(i));
       return e - b;
     }
-    InsideVisitor visit{points, &v, vertices, list};
+    InsideVisitor visit{points, &v, vertices, list, h};
     grid_radius_visit(grid, s, v.centre_cam, v.radius_m, visit);
     return visit.n;
   }
 };
 
-/// J_o: class of listed pair j (observed point, hypothesis) against that hypothesis' rendered points.
+/// J_o: class of listed volume point j from its pair record.
 struct ClassifyObserved {
-  Side rendered;
-  VoteParams params;
-  const Vec3f* points;
-  const Lab<float>* lab;
-  const std::int32_t* pair_point;
-  const std::int64_t* pair_offsets;
-  int num_clouds;
+  PairRecords records;
   PERCH2_HD std::uint8_t operator()(std::int64_t j) const {
-    const int h = find_segment(pair_offsets, num_clouds, j);
-    const std::int32_t i = pair_point[j];
-    return classify(rendered, h, points[i], lab[i], params);
+    const PairRecords& r = records;
+    const auto o = std::int32_t(r.keys[j] & 0xffffffffu);
+    return r.test.result(r.flags[j], r.nearest[j], r.observed_lab[o], r.rendered_lab);
   }
 };
 
@@ -196,22 +268,15 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
                           s.color_rule == ColorRule::AnyNeighbour};
   const thrust::counting_iterator<std::int64_t> first(0);
 
-  // Rendered points, colours and a grid over them (one segment per hypothesis).
-  const KnnIndex<System> rendered_index(rendered);
+  // Rendered points and colours.
+  const thrust::device_vector<Vec3f> rpoints = to_device(to_aos(rendered));
   const thrust::device_vector<std::uint32_t> rgb = to_device(rendered.rgb);
   thrust::device_vector<Lab<float>> rlab(rgb.size());
   thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(rlab), ToLab{s.shading_invariant});
   const thrust::device_vector<std::int64_t> roffsets = to_device(rendered.offsets);
   const thrust::device_vector<std::int32_t> seg = to_device(request.observed_segment);
 
-  // J_r.
-  thrust::device_vector<std::uint8_t> rclass(static_cast<std::size_t>(nr));
-  const Side observed_side{m.index.view().grid, m.observed_lab(s)};
-  thrust::transform(thrust::device, first, first + nr, ptr(rclass),
-                    ClassifyRendered{observed_side, params, rendered_index.view().points, ptr(rlab),
-                                     ptr(roffsets), int(n), ptr(seg)});
-
-  // J_o: list the observed points inside each volume (count, scan, fill), then classify the pairs.
+  // The observed points inside each volume (count, scan, fill, sort), with blank pair records.
   const PackedVolumes packed = pack_volumes(request);
   const thrust::device_vector<VolumeView> volumes = to_device(packed.views);
   const thrust::device_vector<Vec2f> vertices = to_device(packed.vertices);
@@ -222,14 +287,28 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   thrust::inclusive_scan(thrust::device, ptr(pair_offsets) + 1, ptr(pair_offsets) + n + 1,
                          ptr(pair_offsets) + 1);
   const std::int64_t num_pairs = read_at(pair_offsets, std::size_t(n));
-  thrust::device_vector<std::int32_t> pair_point(static_cast<std::size_t>(num_pairs));
-  lister.out_offsets = ptr(pair_offsets), lister.out = ptr(pair_point);
+  thrust::device_vector<std::uint64_t> keys(static_cast<std::size_t>(num_pairs));
+  lister.out_offsets = ptr(pair_offsets), lister.out = ptr(keys);
   thrust::for_each(thrust::device, first, first + n, lister);
+  thrust::sort(thrust::device, ptr(keys), ptr(keys) + num_pairs);  // each hypothesis' range by point
+  thrust::device_vector<std::uint32_t> flags(static_cast<std::size_t>(num_pairs), 0u);
+  thrust::device_vector<std::uint64_t> nearest(static_cast<std::size_t>(num_pairs), kNoPair);
+  const std::size_t memo = s.use_color ? m.lab.size() * FailedColours::kSlots : 0;
+  thrust::device_vector<std::uint32_t> failed_r(memo, 0u), failed_o(memo, 0u);
+  const PairRecords records{ptr(keys),       ptr(pair_offsets),
+                            ptr(flags),      ptr(nearest),
+                            {ptr(failed_r)}, {ptr(failed_o)},
+                            ptr(rgb),        m.observed_lab(s),
+                            ptr(rlab),       {s.tau_c, s.lightness_factor, s.use_color, params.any_rule}};
+
+  // J_r, filling the pair records; then J_o from them.
+  thrust::device_vector<std::uint8_t> rclass(static_cast<std::size_t>(nr));
+  const Side observed_side{m.index.view().grid, m.observed_lab(s)};
+  thrust::transform(thrust::device, first, first + nr, ptr(rclass),
+                    ClassifyRendered{observed_side, params, ptr(rpoints), ptr(rlab), ptr(roffsets), int(n),
+                                     ptr(seg), records});
   thrust::device_vector<std::uint8_t> oclass(static_cast<std::size_t>(num_pairs));
-  const Side rendered_side{rendered_index.view().grid, ptr(rlab)};
-  thrust::transform(thrust::device, first, first + num_pairs, ptr(oclass),
-                    ClassifyObserved{rendered_side, params, ptr(m.points), m.observed_lab(s), ptr(pair_point),
-                                     ptr(pair_offsets), int(n)});
+  thrust::transform(thrust::device, first, first + num_pairs, ptr(oclass), ClassifyObserved{records});
 
   // Per-hypothesis sums.
   thrust::device_vector<ClassCounts> rsum(static_cast<std::size_t>(n)), osum(static_cast<std::size_t>(n));
