@@ -15,7 +15,6 @@
 #include <thrust/for_each.h>
 #include <thrust/iterator/counting_iterator.h>
 #include <thrust/scan.h>
-#include <thrust/sort.h>
 #include <thrust/transform.h>
 #include <cuda/atomic>
 
@@ -23,6 +22,7 @@
 #include "perch2/cuda/cost.hpp"
 #include "perch2/cuda/knn.hpp"
 #include "perch2/knn/grid.hpp"
+#include "segmented_sort.hpp"
 #include "thrust_util.hpp"
 
 namespace perch2::thrust_backend {
@@ -217,6 +217,32 @@ inline std::vector<Vec3f> to_aos(const CloudBatch& b) {
 
 }  // namespace cost_kernels
 
+namespace cost_kernels {
+
+struct KeyLess {
+  PERCH2_HD bool operator()(std::uint64_t a, std::uint8_t, std::uint64_t b, std::uint8_t) const {
+    return a < b;
+  }
+};
+
+/// Sorts the pair keys of every hypothesis' range [offsets[h], offsets[h + 1]) (one hypothesis per range, so
+/// by point). A segmented sort of for_each passes rather than thrust::sort, whose OpenMP version reads
+/// through device references (UBSan reports a null policy reference) and sorts in one thread per call.
+inline void sort_pairs_by_point(const std::int64_t* offsets, std::int64_t n, std::int64_t num_pairs,
+                                std::uint64_t* keys) {
+  if (num_pairs < 2) return;
+  thrust::device_vector<std::int64_t> scalar(1);
+  LaunchShape shape;
+  const std::int64_t largest = max_segment_size(offsets, n, ptr(scalar), shape, "cost_pairs");
+  const auto count = static_cast<std::size_t>(num_pairs);
+  thrust::device_vector<std::uint8_t> tag(count, 0), tag_tmp(count);
+  thrust::device_vector<std::uint64_t> keys_tmp(count);
+  segmented_sort(offsets, int(n), num_pairs, largest, keys, ptr(tag), ptr(keys_tmp), ptr(tag_tmp), KeyLess{},
+                 shape, "cost_pairs");
+}
+
+}  // namespace cost_kernels
+
 template <class System>
 struct Cost<System>::Impl {
   KnnIndex<System> index;
@@ -290,7 +316,7 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   thrust::device_vector<std::uint64_t> keys(static_cast<std::size_t>(num_pairs));
   lister.out_offsets = ptr(pair_offsets), lister.out = ptr(keys);
   thrust::for_each(thrust::device, first, first + n, lister);
-  thrust::sort(thrust::device, ptr(keys), ptr(keys) + num_pairs);  // each hypothesis' range by point
+  sort_pairs_by_point(ptr(pair_offsets), n, num_pairs, ptr(keys));  // each hypothesis' range by point
   thrust::device_vector<std::uint32_t> flags(static_cast<std::size_t>(num_pairs), 0u);
   thrust::device_vector<std::uint64_t> nearest(static_cast<std::size_t>(num_pairs), kNoPair);
   const std::size_t memo = s.use_color ? m.lab.size() * FailedColours::kSlots : 0;
