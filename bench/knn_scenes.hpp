@@ -16,26 +16,14 @@
 
 #include "perch2/core/cloud.hpp"
 #include "perch2/core/device.hpp"
+#include "perch2/io/mesh_io.hpp"
 
 namespace perch2::bench {
 
-inline std::vector<Vec3f> read_ascii_ply_vertices(const std::string& path) {
-  std::ifstream f(path);
-  std::string line;
-  std::size_t n = 0;
-  while (std::getline(f, line) && line.rfind("end_header", 0) != 0) {
-    std::istringstream ls(line);
-    std::string a, b;
-    ls >> a >> b;
-    if (a == "element" && b == "vertex") ls >> n;
-  }
+/// The vertices of a PLY model in millimetres (LINEMOD, BOP), as metres (perch2's PLY reader).
+inline std::vector<Vec3f> ply_vertices_mm(const std::string& path) {
   std::vector<Vec3f> v;
-  for (std::size_t i = 0; i < n && std::getline(f, line); ++i) {
-    std::istringstream ls(line);
-    Vec3f p;
-    ls >> p.x >> p.y >> p.z;
-    v.push_back(0.001f * p);  // millimetres -> metres
-  }
+  for (const auto& p : perch2::io::load_ply(path, {0.001f}).vertices) v.push_back(Vec3f{p.x(), p.y(), p.z()});
   return v;
 }
 
@@ -102,7 +90,7 @@ struct KnnScenes {
 /// Builds both scenes (deterministic: one seeded generator) from the cat model under data_dir.
 inline KnnScenes knn_scenes(const std::string& data_dir) {
   std::mt19937 rng(42);
-  std::vector<Vec3f> model = read_ascii_ply_vertices(data_dir + "/models/linemod_obj_06/obj_06.ply");
+  std::vector<Vec3f> model = ply_vertices_mm(data_dir + "/models/linemod_obj_06/obj_06.ply");
   const bool real = !model.empty();
   if (!real) model = box_model(rng, 15000);
   // Centre the model at its bounding-box centre.

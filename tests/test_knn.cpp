@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "perch2/cuda/launch_plan.hpp"
+#include "perch2/io/mesh_io.hpp"
 #include "perch2/knn/grid.hpp"
 #include "perch2/knn/knn.hpp"
 #include "test_support.hpp"
@@ -217,25 +218,10 @@ void check_all_methods(const CloudBatch& targets, const CloudBatch& queries,
     }
 }
 
-/// Reads the vertices of an ascii PLY (LINEMOD models: x y z first, millimetres) as metres.
-std::vector<Vec3f> read_ascii_ply_vertices(const std::string& path) {
-  std::ifstream f(path);
-  std::string line;
-  std::size_t n = 0;
-  while (std::getline(f, line) && line.rfind("end_header", 0) != 0) {
-    std::istringstream ls(line);
-    std::string a, b;
-    ls >> a >> b;
-    if (a == "element" && b == "vertex") ls >> n;
-  }
-  std::vector<Vec3f> v(n);
-  for (auto& p : v) {
-    std::getline(f, line);
-    std::istringstream ls(line);
-    ls >> p.x >> p.y >> p.z;
-    p = 0.001f * p;
-  }
-  REQUIRE(f.good());
+/// The vertices of a PLY model in millimetres (LINEMOD), as metres (perch2's PLY reader).
+std::vector<Vec3f> ply_vertices_mm(const std::string& path) {
+  std::vector<Vec3f> v;
+  for (const auto& p : perch2::io::load_ply(path, {0.001f}).vertices) v.push_back(Vec3f{p.x(), p.y(), p.z()});
   return v;
 }
 
@@ -305,7 +291,7 @@ TEST_CASE_TEMPLATE("kNN equals brute force on surface clouds (sphere, box)", Bac
 
 TEST_CASE_TEMPLATE("kNN equals brute force on the LINEMOD cat model", Backend, PERCH2_CPU_RUNNABLE_BACKENDS) {
   PERCH2_REQUIRE_SHARED_DATA(path, "models/linemod_obj_06/obj_06.ply");
-  const std::vector<Vec3f> cat = read_ascii_ply_vertices(path);
+  const std::vector<Vec3f> cat = ply_vertices_mm(path);
   REQUIRE(cat.size() == 15736);
   std::mt19937 rng(3);
   // Targets: a 5,000-point subset of the scanned vertices (the benchmark's observed-object size).
