@@ -184,8 +184,9 @@ constexpr bool breaks_ties_by_index() {
 template <class Backend>
 void check_all_methods(const CloudBatch& targets, const CloudBatch& queries,
                        const std::vector<std::int32_t>& seg, const std::vector<int>& ks,
-                       const std::vector<float>& max_distances, std::size_t small_budget = 0) {
-  const typename Backend::KnnIndex index(targets);
+                       const std::vector<float>& max_distances, std::size_t small_budget = 0,
+                       const perch2::KnnIndexSettings& index_settings = {}) {
+  const typename Backend::KnnIndex index(targets, index_settings);
   for (int k : ks)
     for (float md : max_distances) {
       const Reference ref = brute_force(targets, queries, seg, k, md);
@@ -269,6 +270,10 @@ TEST_CASE_TEMPLATE("kNN equals brute force on random clouds with several segment
   }
   const CloudBatch queries = make_batch(qc);
   check_all_methods<Backend>(targets, queries, seg, {1, 4, 16}, {kInf, 0.03f}, 4000);
+  // An index built without cell representatives (as the cost stage's): the grid falls back to rings.
+  perch2::KnnIndexSettings no_reps;
+  no_reps.grid.cell_representatives = false;
+  check_all_methods<Backend>(targets, queries, seg, {1, 16}, {kInf, 0.03f}, 0, no_reps);
 }
 
 TEST_CASE_TEMPLATE("kNN equals brute force on surface clouds (sphere, box)", Backend,

@@ -251,8 +251,14 @@ struct Cost<System>::Impl {
   thrust::device_vector<Vec3f> points;
   thrust::device_vector<Lab<float>> lab, lab_shading_invariant;  ///< CostSettings::shading_invariant
 
+  static KnnIndexSettings radius_only() {
+    KnnIndexSettings s;
+    s.grid.cell_representatives = false;  // the cost runs radius searches only
+    return s;
+  }
+
   explicit Impl(const CloudBatch& observed)
-      : index(observed),
+      : index(observed, radius_only()),
         offsets_host(observed.offsets),
         offsets(to_device(observed.offsets)),
         points(to_device(cost_kernels::to_aos(observed))) {

@@ -318,7 +318,7 @@ struct KnnIndex<System>::Impl {
 
   GridView grid_view() const {
     return {ptr(grid_segments), int(grid_segments.size()), ptr(cell_start),
-            ptr(grid_points),   ptr(grid_index),           ptr(cell_rep)};
+            ptr(grid_points),   ptr(grid_index),           cell_rep.empty() ? nullptr : ptr(cell_rep)};
   }
 
   std::size_t index_bytes() const {
@@ -465,6 +465,11 @@ KnnIndex<System>::KnnIndex(CloudBatch targets, const KnnIndexSettings& settings)
     segmented_sort(ptr(m.cell_start), int(total_cells), n, max_cell, ptr(m.grid_index), ptr(m.grid_points),
                    reuse(sort_index, un, allocs), reuse(sort_points, un, allocs), IndexLess{}, m.shape,
                    "cell_sort");
+  if (!settings.grid.cell_representatives) {
+    m.end_call();
+    m.shape.workspace_bytes = m.index_bytes();
+    return;
+  }
   // Cell representatives by jump flooding: one pass per step for all segments (steps of the largest grid).
   thrust::for_each(thrust::device, first, first + total_cells,
                    RepInit{m.grid_view(), reuse(m.cell_rep, cells, allocs)});
