@@ -3,7 +3,7 @@
 // threads) of each estimate, the hypothesis counts and the ADD-S error of every ground-truth object.
 //
 //   bench_search3dof [--scenes N] [--seed S] [--backend cpu|thrust_omp] [--score-stride K] [--render-stride
-//   K] [--coarse-stride K (0: off)] [--rescore-top N] [--icp-points N (0: all)]
+//   K] [--coarse-stride K (0: off)] [--rescore-yaws N] [--icp-points N (0: all)]
 //                    [--icp-iterations K] [--icp-epsilon E] [--depth-only] [--no-eval]
 //                    [--dedupe-mm D] [--dedupe-deg A] [--no-exclusive] [--raw-colour] [--kl L] [--tau T]
 //                    [--verbose]
@@ -42,7 +42,7 @@ struct Options {
   int scenes = 1;
   std::uint64_t seed = 8;
   std::string backend = "cpu";
-  int score_stride = -1, render_stride = -1, icp_iterations = -1, coarse_stride = -1, rescore_top = -1,
+  int score_stride = -1, render_stride = -1, icp_iterations = -1, coarse_stride = -1, rescore_yaws = -1,
       icp_points = -1;
   float icp_epsilon = -1;  ///< translation (m) and rotation (rad) convergence thresholds of the ICP
   bool depth_only = false;
@@ -76,8 +76,8 @@ Options parse(int argc, char** argv) {
       o.coarse_stride = std::atoi(next());
     else if (a == "--icp-points")
       o.icp_points = std::atoi(next());
-    else if (a == "--rescore-top")
-      o.rescore_top = std::atoi(next());
+    else if (a == "--rescore-yaws")
+      o.rescore_yaws = std::atoi(next());
     else if (a == "--render-stride")
       o.render_stride = std::atoi(next());
     else if (a == "--icp-iterations")
@@ -176,7 +176,7 @@ int run(const Options& o) {
     s.strict_instances = false;
     if (o.score_stride > 0) s.score_stride = o.score_stride;
     if (o.coarse_stride >= 0) s.coarse_score_stride = o.coarse_stride;
-    if (o.rescore_top > 0) s.rescore_top = o.rescore_top;
+    if (o.rescore_yaws > 0) s.rescore_yaws = o.rescore_yaws;
     if (o.icp_points >= 0) s.icp_max_points = o.icp_points;
     if (o.render_stride > 0) s.render.stride = o.render_stride;
     if (o.icp_iterations > 0) s.icp.max_iterations = o.icp_iterations;

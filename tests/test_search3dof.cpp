@@ -235,6 +235,40 @@ TEST_CASE("two copies of one model are both found") {
   CHECK(xy_error(*g, 0.f, -0.08f) < 0.01f);
 }
 
+TEST_CASE("the coarse pass keeps, for every model, each object's place and a few yaws at each") {
+  // Models that fit each other's objects (here two names for one red can, three red cans on the table):
+  // every model must keep all three places (one per object in the scene) through the coarse pass, or its
+  // own could be crowded out by the others'.
+  const RgbdFrame frame =
+      render_scene(can_meshes(), {{0, -0.12f, 0.02f, 0.f}, {0, 0.1f, 0.08f, 1.f}, {0, 0.f, -0.08f, 0.5f}});
+  Mesh twin = can_meshes()[0];
+  twin.name = "red_can_twin";
+  TabletopSettings s;
+  s.keep_scored = true;
+  const TabletopResult r = TabletopEstimator<cpu::Backend>({{can_meshes()[0]}, {twin}}, s)
+                               .estimate(frame, {{0, 2}, {1, 1}}, camera_pose());
+  REQUIRE(r.poses.size() == 3);
+  const std::size_t max_places = 3 + std::size_t(s.rescore_extra_places);
+  for (int model = 0; model < 2; ++model) {
+    std::vector<Eigen::Vector2f> places;  // scored hypotheses of this model, grouped within 2 cm
+    std::size_t scored = 0;
+    for (const auto& h : r.scored) {
+      if (h.model != model) continue;
+      ++scored;
+      const Eigen::Vector2f xy(h.x_m, h.y_m);
+      if (std::none_of(places.begin(), places.end(), [&](const auto& p) { return (p - xy).norm() < 0.02f; }))
+        places.push_back(xy);
+    }
+    CAPTURE(model);
+    CHECK(places.size() <= max_places);
+    CHECK(scored <= max_places * std::size_t(s.rescore_yaws));
+    for (const Eigen::Vector2f can :
+         {Eigen::Vector2f(-0.12f, 0.02f), Eigen::Vector2f(0.1f, 0.08f), Eigen::Vector2f(0.f, -0.08f)})
+      CHECK(std::any_of(places.begin(), places.end(),
+                        [&](const auto& p) { return (p - can).norm() < 0.015f; }));
+  }
+}
+
 TEST_CASE("one can is claimed by one model: placements of different models exclude each other") {
   // Two models that look exactly alike (the red can under two names) and one red can on the table.
   const RgbdFrame frame = render_scene(can_meshes(), {{0, 0.05f, 0.04f, 0.4f}});
@@ -338,10 +372,11 @@ TEST_CASE("cost values of the search agree between backends") {
   REQUIRE(a.poses.size() == b.poses.size());
   CHECK(a.hypotheses_kept == b.hypotheses_kept);
   for (std::size_t i = 0; i < a.poses.size(); ++i) {
-    // ICP runs in double on cpu and float on Thrust: poses agree to a millimetre, costs closely.
-    CHECK((a.poses[i].T_world_obj.translation() - b.poses[i].T_world_obj.translation()).norm() < 0.001f);
-    CHECK(std::abs(a.poses[i].cost.total - b.poses[i].cost.total) <=
-          0.05f * float(a.poses[i].cost.rendered_points));
+    // ICP runs in double on cpu and float on Thrust, so refined hypotheses differ by fractions of a
+    // millimetre and selection may take a different one of several near-equal neighbours: poses agree to
+    // 2 mm, costs (normalised: fractions of the points) to 0.05.
+    CHECK((a.poses[i].T_world_obj.translation() - b.poses[i].T_world_obj.translation()).norm() < 0.002f);
+    CHECK(std::abs(a.poses[i].cost.total - b.poses[i].cost.total) <= 0.05f);
   }
   // The same poses scored by both cost backends give identical counts.
   const cpu::Renderer renderer(can_meshes());
@@ -469,7 +504,7 @@ TEST_CASE("the default search survives depth noise, darker lighting and colour n
         0.01f);
   CHECK((pose_of(r, 1)->T_cam_obj.translation() - (T * on_table(-0.09f, -0.02f, 0.f)).translation()).norm() <
         0.01f);
-  CHECK(pose_of(r, 0)->cost.total < 0.05f * float(pose_of(r, 0)->cost.rendered_points));
+  CHECK(float(pose_of(r, 0)->cost.rendered_outliers()) < 0.05f * float(pose_of(r, 0)->cost.rendered_points));
   // Raw colours with the standard's reference lightness weight (kL = 1, the paper's implicit choice): the
   // darker colours are mostly colour outliers, the cans are missed or cost far more.
   TabletopSettings paper;
