@@ -1,8 +1,8 @@
 // Thrust cost stage. Included by cost.cu (nvcc, CUDA system) and cost_omp.cpp (g++, OpenMP system); the
 // algorithm text lives here once, over the PERCH2_HD pieces of perch2/cost/cost.hpp and perch2/knn/grid.hpp.
 //   Volumes: one thread per hypothesis counts, then lists, the observed points inside its volume (visiting
-//   the
-//            observed grid within the volume's bounding sphere) as keys (hypothesis, point), sorted.
+//            the observed grid within the volume's bounding sphere) as keys (hypothesis, point), in point
+//            order (the observed cloud is kept in its grid's order, see Impl::in_grid_order).
 //   J_r:     one thread per rendered point visits the observed grid within delta (OutlierVote), and fills the
 //            pair records of the observed points of its hypothesis' volume it meets (binary search in the
 //            hypothesis' sorted keys; atomic or / min, see PairColorTest), so J_o needs no search and no
@@ -17,12 +17,12 @@
 #include <thrust/scan.h>
 #include <thrust/transform.h>
 #include <cuda/atomic>
+#include <stdexcept>
 
 #include "perch2/core/segments.hpp"
 #include "perch2/cuda/cost.hpp"
 #include "perch2/cuda/knn.hpp"
 #include "perch2/knn/grid.hpp"
-#include "segmented_sort.hpp"
 #include "thrust_util.hpp"
 
 namespace perch2::thrust_backend {
@@ -217,32 +217,6 @@ inline std::vector<Vec3f> to_aos(const CloudBatch& b) {
 
 }  // namespace cost_kernels
 
-namespace cost_kernels {
-
-struct KeyLess {
-  PERCH2_HD bool operator()(std::uint64_t a, std::uint8_t, std::uint64_t b, std::uint8_t) const {
-    return a < b;
-  }
-};
-
-/// Sorts the pair keys of every hypothesis' range [offsets[h], offsets[h + 1]) (one hypothesis per range, so
-/// by point). A segmented sort of for_each passes rather than thrust::sort, whose OpenMP version reads
-/// through device references (UBSan reports a null policy reference) and sorts in one thread per call.
-inline void sort_pairs_by_point(const std::int64_t* offsets, std::int64_t n, std::int64_t num_pairs,
-                                std::uint64_t* keys) {
-  if (num_pairs < 2) return;
-  thrust::device_vector<std::int64_t> scalar(1);
-  LaunchShape shape;
-  const std::int64_t largest = max_segment_size(offsets, n, ptr(scalar), shape, "cost_pairs");
-  const auto count = static_cast<std::size_t>(num_pairs);
-  thrust::device_vector<std::uint8_t> tag(count, 0), tag_tmp(count);
-  thrust::device_vector<std::uint64_t> keys_tmp(count);
-  segmented_sort(offsets, int(n), num_pairs, largest, keys, ptr(tag), ptr(keys_tmp), ptr(tag_tmp), KeyLess{},
-                 shape, "cost_pairs");
-}
-
-}  // namespace cost_kernels
-
 template <class System>
 struct Cost<System>::Impl {
   KnnIndex<System> index;
@@ -257,11 +231,34 @@ struct Cost<System>::Impl {
     return s;
   }
 
-  explicit Impl(const CloudBatch& observed)
+  /// The observed cloud in its grid's order (segment, cell, index; segments keep their ranges). The grid
+  /// over it maps every sorted position to itself, so a grid visit, which walks sorted positions upwards,
+  /// meets points in increasing index order: each volume's list of (hypothesis, point) keys comes out
+  /// sorted, with no sort per call, and neighbouring points sit together in memory.
+  static CloudBatch in_grid_order(const CloudBatch& observed) {
+    const HostGrid grid(observed, radius_only().grid);
+    CloudBatch out;
+    out.offsets = observed.offsets;
+    out.resize(observed.size());
+    for (std::size_t i = 0; i < observed.size(); ++i) {
+      const auto j = std::size_t(grid.point_index[i]);
+      out.x[i] = observed.x[j], out.y[i] = observed.y[j], out.z[i] = observed.z[j];
+      out.rgb[i] = observed.rgb[j], out.pixel[i] = observed.pixel[j], out.cloud[i] = observed.cloud[j];
+    }
+    return out;
+  }
+
+  explicit Impl(const CloudBatch& observed) : Impl(in_grid_order(observed), 0) {}
+  Impl(const CloudBatch& observed, int /*in grid order*/)
       : index(observed, radius_only()),
         offsets_host(observed.offsets),
         offsets(to_device(observed.offsets)),
         points(to_device(cost_kernels::to_aos(observed))) {
+    std::vector<std::int32_t> order;
+    append_to_host(order, index.view().grid.point_index, observed.size());
+    for (std::size_t i = 0; i < order.size(); ++i)
+      if (order[i] != std::int32_t(i))  // the volume lists would come out unsorted
+        throw std::logic_error("thrust cost: the observed grid does not keep the grid order it was given");
     const thrust::device_vector<std::uint32_t> rgb = to_device(observed.rgb);
     lab.resize(rgb.size()), lab_shading_invariant.resize(rgb.size());
     thrust::transform(thrust::device, ptr(rgb), ptr(rgb) + rgb.size(), ptr(lab), cost_kernels::ToLab{false});
@@ -322,7 +319,8 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   thrust::device_vector<std::uint64_t> keys(static_cast<std::size_t>(num_pairs));
   lister.out_offsets = ptr(pair_offsets), lister.out = ptr(keys);
   thrust::for_each(thrust::device, first, first + n, lister);
-  sort_pairs_by_point(ptr(pair_offsets), n, num_pairs, ptr(keys));  // each hypothesis' range by point
+  // Each hypothesis' keys are in point order already: the grid visit meets the points in index order
+  // (Impl::in_grid_order).
   thrust::device_vector<std::uint32_t> flags(static_cast<std::size_t>(num_pairs), 0u);
   thrust::device_vector<std::uint64_t> nearest(static_cast<std::size_t>(num_pairs), kNoPair);
   const std::size_t memo = s.use_color ? m.lab.size() * FailedColours::kSlots : 0;
