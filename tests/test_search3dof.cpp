@@ -177,6 +177,29 @@ TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-
                                << ", refine " << r.timings.refine << ", cost " << r.timings.cost << ")");
 }
 
+TEST_CASE("hypotheses that ICP leaves mostly unmatched (bare table) are dropped before scoring") {
+  const RgbdFrame frame = render_scene(can_meshes(), {{0, 0.08f, 0.06f, 0.3f}, {1, -0.09f, -0.02f, 1.1f}});
+  // Every grid position of a 40 cm square is kept (no support test), most of them on bare table.
+  TabletopSettings s;
+  s.workspace_xy_m = Eigen::AlignedBox2f(Eigen::Vector2f(-0.2f, -0.2f), Eigen::Vector2f(0.2f, 0.2f));
+  s.min_support_points = 0;
+  TabletopSettings keep_all = s;
+  keep_all.min_icp_inlier_fraction = 0.f;
+  const TabletopResult all = TabletopEstimator<cpu::Backend>(can_models(), keep_all)
+                                 .estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
+  const TabletopResult pruned =
+      TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
+  CHECK(pruned.hypotheses_refined == all.hypotheses_refined);
+  CHECK(pruned.hypotheses_coarse < all.hypotheses_coarse);
+  REQUIRE(pruned.poses.size() == 2);
+  REQUIRE(all.poses.size() == 2);
+  for (int m = 0; m < 2; ++m)  // the same placements are chosen
+    CHECK(
+        (pose_of(pruned, m)->T_world_obj.translation() - pose_of(all, m)->T_world_obj.translation()).norm() <
+        1e-4f);
+  MESSAGE("scored at the coarse stride: " << pruned.hypotheses_coarse << " of " << all.hypotheses_coarse);
+}
+
 TEST_CASE("the depth-only cost cannot tell same-shape cans apart; the RGB-D cost can") {
   const float ax = 0.08f, ay = 0.06f, bx = -0.09f, by = -0.02f;
   const RgbdFrame frame = render_scene(can_meshes(), {{0, ax, ay, 0.3f}, {1, bx, by, 0.3f}});

@@ -147,6 +147,11 @@ struct TabletopSettings {
   /// all; BF-ICP always uses all, its fitness is over every point): three parameters need far fewer than
   /// a large object shows, and refinement then no longer grows with the object's size in the image.
   int icp_max_points = 192;
+  /// After refinement, hypotheses whose ICP found a correspondence (within the ICP cap) for less than this
+  /// fraction of its points are dropped before scoring: they lie on bare table or beside the objects, and a
+  /// pose needs min_inlier_fraction of its points within delta (< the cap) to be accepted anyway. 0 keeps
+  /// all.
+  float min_icp_inlier_fraction = 0.5f;
   /// After refinement, hypotheses of one model that ICP moved to the same placement (within dedupe_xy_m
   /// in x and y and dedupe_yaw_rad in yaw; yaw ignored for yaw-symmetric models) are scored once: from a
   /// 0.08 m / 22.5 deg grid most starts near an object converge to a few placements. 0 turns it off.
@@ -611,17 +616,20 @@ class TabletopEstimator {
   }
 
   /// Renders at the refinement stride, runs (x, y, yaw) ICP and moves every candidate to its result.
-  /// Returns the ICP result (BF-ICP selects on it) and the rendered point counts.
+  /// Returns the ICP result (BF-ICP selects on it), the rendered point counts and the points ICP aligned.
   RegistrationResult refine(const Frame& f, std::vector<Candidate>& cands, const Occluders* occ,
-                            std::vector<std::int64_t>& points, TabletopTimings& timings) const {
+                            std::vector<std::int64_t>& points, std::vector<std::int64_t>& icp_points,
+                            TabletopTimings& timings) const {
     const CloudBatch rendered = render(f, cands, settings_.render.stride, occ, timings);
     points.resize(cands.size());
     for (std::size_t h = 0; h < cands.size(); ++h) points[h] = std::int64_t(rendered.cloud_size(h));
     const auto t = tabletop_detail::Clock::now();
     const std::vector<std::int32_t> seg(cands.size(), 0);
     const int max_points = settings_.mode == SearchMode::BruteForceIcp ? 0 : settings_.icp_max_points;
-    RegistrationResult r =
-        f.registration->icp(tabletop_detail::thin_clouds(rendered, max_points), seg, icp_settings(f));
+    const CloudBatch sources = tabletop_detail::thin_clouds(rendered, max_points);
+    RegistrationResult r = f.registration->icp(sources, seg, icp_settings(f));
+    icp_points.resize(cands.size());
+    for (std::size_t h = 0; h < cands.size(); ++h) icp_points[h] = std::int64_t(sources.cloud_size(h));
     const Pose T_world_cam = f.T_cam_world.inverse();
     for (std::size_t h = 0; h < cands.size(); ++h) {
       // Back to exact (x, y, yaw): drop the rounding that would tilt the model off the table.
@@ -632,6 +640,17 @@ class TabletopEstimator {
     }
     timings.refine += tabletop_detail::seconds_since(t);
     return r;
+  }
+
+  /// The refined candidates whose ICP matched at least min_icp_inlier_fraction of the points it aligned.
+  std::vector<Candidate> well_supported(const std::vector<Candidate>& cands, const RegistrationResult& icp,
+                                        const std::vector<std::int64_t>& icp_points) const {
+    std::vector<Candidate> out;
+    for (std::size_t h = 0; h < cands.size(); ++h)
+      if (float(icp.inliers[h]) >= settings_.min_icp_inlier_fraction * float(icp_points[h]) &&
+          icp_points[h] > 0)
+        out.push_back(cands[h]);
+    return out;
   }
 
   CostRequest cost_request(const Frame& f, const std::vector<Candidate>& cands) const {
@@ -805,10 +824,11 @@ class TabletopEstimator {
     std::vector<float> scores;
     std::vector<CostBreakdown> costs;
     if (!cands.empty()) {
-      std::vector<std::int64_t> points;
+      std::vector<std::int64_t> points, icp_points;
       RegistrationResult icp;
-      if (s.refine || bf) icp = refine(f, cands, occ, points, result.timings);
+      if (s.refine || bf) icp = refine(f, cands, occ, points, icp_points, result.timings);
       result.hypotheses_refined += cands.size();
+      if (s.refine && !bf) cands = well_supported(cands, icp, icp_points);
       scores.assign(cands.size(), 0.f);
       costs.resize(cands.size());
       if (bf) {  // truncated mean squared distance: points without a correspondence count as the cap
@@ -822,7 +842,8 @@ class TabletopEstimator {
         }
       } else {
         cands = dedupe(cands, s.dedupe_xy_m, s.dedupe_yaw_rad, yaw_symmetric_);
-        if (s.coarse_score_stride > s.score_stride) cands = best_coarse(f, cands, objects, occ, result);
+        if (s.coarse_score_stride > s.score_stride && !cands.empty())
+          cands = best_coarse(f, cands, objects, occ, result);
         scores.assign(cands.size(), 0.f);
         if (!cands.empty())
           costs = score(f, cands, render(f, cands, s.score_stride, occ, result.timings), result.timings);
@@ -870,9 +891,15 @@ class TabletopEstimator {
           const float d = f.rgbd.depth_m.data[i], p = occ.depth_m.data[i];
           occ.depth_m.data[i] = p > 0.f && (d <= 0.f || p < d) ? p : d;
         }
-      std::vector<std::int64_t> points;
-      if (s.refine) refine(f, cands, &occ, points, result.timings);
-      result.hypotheses_refined += cands.size();
+      std::vector<std::int64_t> points, icp_points;
+      if (s.refine) {
+        const RegistrationResult icp = refine(f, cands, &occ, points, icp_points, result.timings);
+        result.hypotheses_refined += cands.size();
+        cands = well_supported(cands, icp, icp_points);
+        if (cands.empty()) break;
+      } else {
+        result.hypotheses_refined += cands.size();
+      }
       cands = dedupe(cands, s.dedupe_xy_m, s.dedupe_yaw_rad, yaw_symmetric_);
       const CloudBatch all = render(f, cands, s.score_stride, nullptr, result.timings);
       std::vector<std::int32_t> hiding(cands.size(), 0);
