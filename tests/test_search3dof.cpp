@@ -577,6 +577,34 @@ TEST_CASE("a model whose axis is not z: rest pose from an example placement, fou
         doctest::Approx(1.f).epsilon(1e-3));
 }
 
+TEST_CASE("selection charges a pose for the share of it that is hidden or out of view") {
+  // Two red cans, one behind a tall grey box (not a model) that leaves about a third of it in view.
+  std::vector<Mesh> meshes = can_meshes();
+  Mesh box = test::make_box(0.12f, 0.04f, 0.14f);
+  box.vertex_colors.assign(box.vertices.size(), Rgb8{120, 120, 120});
+  for (auto& v : box.vertices) v.z() += 0.07f;  // standing on z = 0
+  meshes.push_back(box);
+  const RgbdFrame frame =
+      render_scene(meshes, {{0, 0.1f, 0.05f, 0.3f}, {0, -0.1f, 0.07f, 1.f}, {2, -0.1f, -0.02f, 0.f}});
+  TabletopSettings s;
+  const TabletopResult r =
+      TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 2}}, camera_pose());
+  REQUIRE(r.poses.size() == 2);
+  const TabletopPose *seen = pose_of(r, 0, 0), *behind = pose_of(r, 0, 1);
+  if (xy_error(*seen, 0.1f, 0.05f) > xy_error(*behind, 0.1f, 0.05f)) std::swap(seen, behind);
+  CHECK(xy_error(*seen, 0.1f, 0.05f) < 0.01f);
+  CHECK(xy_error(*behind, -0.1f, 0.07f) < 0.01f);
+  // score = cost + hidden_point_weight * hidden share: nothing of the first is hidden, most of the second.
+  CHECK(seen->score == doctest::Approx(seen->cost.total).epsilon(1e-6));
+  const float hidden_share = (behind->score - behind->cost.total) / s.hidden_point_weight;
+  CHECK(hidden_share > 0.5f);
+  CHECK(hidden_share < 0.8f);
+  // The same can rendered in full shows about as many points as the one in view (same distance).
+  CHECK(float(behind->cost.rendered_points) ==
+        doctest::Approx((1.f - hidden_share) * float(seen->cost.rendered_points)).epsilon(0.25));
+  MESSAGE("behind the box: " << behind->cost.rendered_points << " points, hidden share " << hidden_share);
+}
+
 TEST_CASE("an unknown object (not among the models) neither attracts the cans nor hides them") {
   // A grey box (not a model) beside the cans and partly in front of the red one.
   std::vector<Mesh> meshes = can_meshes();
