@@ -131,8 +131,11 @@ struct ClassifyRendered {
   PERCH2_HD std::uint8_t operator()(std::int64_t i) const {
     const int c = find_segment(offsets, num_clouds, i);
     const VoteParams& s = params;
-    PairVisitor visit{
-        {lab[i], observed.lab, s.tau_c, s.kL, s.use_color, s.any_rule}, &records, c, std::int32_t(i)};
+    PairVisitor visit{{lab[i], observed.lab, s.tau_c, s.kL, s.use_color, s.any_rule},
+                      &records,
+                      c,
+                      std::int32_t(i),
+                      FailedColours::key(records.rendered_rgb[i])};
     grid_radius_visit(observed.grid, segment_of_cloud[c], points[i], s.delta_m, visit);
     return visit.vote.result();
   }
