@@ -193,14 +193,16 @@ struct SortKeys {
   std::uint64_t* key_stripe;
   std::int32_t* key_pixel;
   std::int32_t* order;
-  PERCH2_HD void operator()(std::int64_t i) const {
-    if (pixel) {
+  /// Point i of cloud c.
+  PERCH2_HD void key(std::int64_t i, int c) const {
+    if (pixel)
       key_pixel[i] = pixel[i];
-    } else {
-      const Stripes& st = stripes[find_segment(offsets, num_clouds, i)];
-      key_stripe[i] = stripe_key(stripe_of(st, points[i].y), points[i].x);
-    }
+    else
+      key_stripe[i] = stripe_key(stripe_of(stripes[c], points[i].y), points[i].x);
     order[i] = std::int32_t(i);
+  }
+  PERCH2_HD void operator()(std::int64_t i) const {
+    key(i, pixel ? 0 : find_segment(offsets, num_clouds, i));
   }
 };
 
@@ -265,8 +267,10 @@ struct SourceKnnNormals {
     return b;
   }
 
-  PERCH2_HD void operator()(std::int64_t i) const {
-    const int c = find_segment(offsets, num_clouds, i);
+  PERCH2_HD void operator()(std::int64_t i) const { normal(i, find_segment(offsets, num_clouds, i)); }
+
+  /// Point i of cloud c.
+  PERCH2_HD void normal(std::int64_t i, int c) const {
     const std::int64_t s0 = position[i], b = offsets[c], e = offsets[c + 1];
     const Stripes st = stripes[c];
     const Vec3f q = sorted[s0];
@@ -334,8 +338,10 @@ struct SourcePixelNormals {
     return b;
   }
 
-  PERCH2_HD void operator()(std::int64_t i) const {
-    const int c = find_segment(offsets, num_clouds, i);
+  PERCH2_HD void operator()(std::int64_t i) const { normal(i, find_segment(offsets, num_clouds, i)); }
+
+  /// Point i of cloud c.
+  PERCH2_HD void normal(std::int64_t i, int c) const {
     const Vec3f p = points[i];
     const int u = pixel[i] % width, v = pixel[i] / width;
     Vec3f s1{0.f, 0.f, 0.f};
@@ -627,13 +633,13 @@ struct RegisterClouds {
     for (std::int64_t i = b; i < e; ++i) corr[i] = corr[num_points + i] = -1;
     if (normals != 0) {
       if (normals == 1) plan_stripes(h);
-      for (std::int64_t i = b; i < e; ++i) sort_keys(i);
+      for (std::int64_t i = b; i < e; ++i) sort_keys.key(i, h);
       sort_clouds(h);
       if (normals == 1) {
         for (std::int64_t i = b; i < e; ++i) scatter_sorted(i);
-        for (std::int64_t i = b; i < e; ++i) knn_normals(i);
+        for (std::int64_t i = b; i < e; ++i) knn_normals.normal(i, h);
       } else {
-        for (std::int64_t i = b; i < e; ++i) pixel_normals(i);
+        for (std::int64_t i = b; i < e; ++i) pixel_normals.normal(i, h);
       }
     }
     init(h);
