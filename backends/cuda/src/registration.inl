@@ -17,7 +17,6 @@
 #include <cuda/atomic>
 
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <map>
 #include <mutex>
@@ -135,81 +134,26 @@ PERCH2_HD inline void heap_sort_pairs(K* key, std::int32_t* idx, std::int64_t n)
   heap_sort(n, less, swap);
 }
 
-/// The kNN sweep's index of one source cloud: horizontal stripes (along y, from y0, of height 1 / inv_height)
-/// whose points are sorted by x. A query sweeps its own stripe outwards in x, then the stripes above and
-/// below, until the y gap plus the x gap exceeds its k-th distance: ~3 stripes of ~2 k-th distances in x
-/// instead of a slab through the whole cloud.
-struct Stripes {
-  float y0 = 0.f, height = 0.f, inv_height = 0.f;  ///< inv_height 0: one stripe
-  float slack = 0.f;  ///< stripe bounds are widened by this (float rounding of the stripe assignment), metres
-};
-
-/// Stripe geometry of each source cloud: the height of a disc holding ~k of the cloud's points spread evenly
-/// over its x-y box (on a line along y: k points' share of its extent), so a query scans ~3 stripes.
-struct PlanStripes {
-  const Vec3f* points;
-  const std::int64_t* offsets;
-  int k;
-  Stripes* stripes;
-  PERCH2_HD void operator()(int c) const {
-    const std::int64_t b = offsets[c], e = offsets[c + 1];
-    Stripes st;
-    if (e > b) {
-      float x0 = points[b].x, x1 = x0, y0 = points[b].y, y1 = y0;
-      for (std::int64_t i = b + 1; i < e; ++i) {
-        x0 = min_f(x0, points[i].x), x1 = max_f(x1, points[i].x);
-        y0 = min_f(y0, points[i].y), y1 = max_f(y1, points[i].y);
-      }
-      const float n = float(e - b), ey = y1 - y0;
-      const float h = max_f(sqrtf(float(k) * (x1 - x0) * ey / (3.14159265f * n)), ey * float(k) / n);
-      st.y0 = y0;
-      if (h > 0.f && h < INFINITY) st.height = h, st.inv_height = 1.f / h;
-      st.slack = 1e-5f * (fabsf(y0) + fabsf(y1) + ey + st.height);
-    }
-    stripes[c] = st;
-  }
-};
-
-/// Stripe of a y coordinate (y >= y0).
-PERCH2_HD inline std::uint32_t stripe_of(const Stripes& st, float y) {
-  return std::uint32_t((y - st.y0) * st.inv_height);
-}
-
-/// Sort key (stripe, x): x's float bits mapped to an unsigned integer of the same order.
-PERCH2_HD inline std::uint64_t stripe_key(std::uint32_t stripe, float x) {
-  std::uint32_t u;
-  memcpy(&u, &x, sizeof u);
-  u ^= (u >> 31) ? 0xffffffffu : 0x80000000u;
-  return (std::uint64_t(stripe) << 32) | u;
-}
-
-/// Sort keys of source points: (stripe, x) (the kNN sweep) or the pixel index (pixel neighbourhoods).
+/// Sort keys of source points: x coordinate (the kNN sweep) or the pixel index (pixel neighbourhoods).
 struct SortKeys {
   const Vec3f* points;
-  const std::int64_t* offsets;
-  int num_clouds;
-  const Stripes* stripes;
-  const std::int32_t* pixel;  // null: key = (stripe, x)
-  std::uint64_t* key_stripe;
+  const std::int32_t* pixel;  // null: key = x
+  float* key_x;
   std::int32_t* key_pixel;
   std::int32_t* order;
-  /// Point i of cloud c.
-  PERCH2_HD void key(std::int64_t i, int c) const {
+  PERCH2_HD void operator()(std::int64_t i) const {
     if (pixel)
       key_pixel[i] = pixel[i];
     else
-      key_stripe[i] = stripe_key(stripe_of(stripes[c], points[i].y), points[i].x);
+      key_x[i] = points[i].x;
     order[i] = std::int32_t(i);
-  }
-  PERCH2_HD void operator()(std::int64_t i) const {
-    key(i, pixel ? 0 : find_segment(offsets, num_clouds, i));
   }
 };
 
 /// Sorts each source cloud's (key, point) pairs in place: one cloud per thread (clouds are small).
 struct SortClouds {
   const std::int64_t* offsets;
-  std::uint64_t* key_stripe;
+  float* key_x;
   std::int32_t* key_pixel;
   std::int32_t* order;
   PERCH2_HD void operator()(int c) const {
@@ -217,11 +161,11 @@ struct SortClouds {
     if (key_pixel)
       heap_sort_pairs(key_pixel + b, order + b, n);
     else
-      heap_sort_pairs(key_stripe + b, order + b, n);
+      heap_sort_pairs(key_x + b, order + b, n);
   }
 };
 
-/// Scatters the sorted points and each point's sorted position.
+/// Scatters the x-sorted points and each point's sorted position.
 struct ScatterSorted {
   const Vec3f* points;
   const std::int32_t* order;
@@ -233,82 +177,35 @@ struct ScatterSorted {
   }
 };
 
-/// Source normals from the k nearest neighbours within the same source cloud, found exactly by sweeping the
-/// cloud's stripes (see Stripes; neighbours ordered by (distance, sorted position)).
+/// Source normals from the k nearest neighbours within the same source cloud, found exactly by a sweep over
+/// the cloud's points sorted by x: outwards from the query until the x gap alone exceeds the k-th distance.
 struct SourceKnnNormals {
-  const Vec3f* sorted;        // points sorted by (cloud, stripe, x)
-  const std::uint64_t* keys;  // their sort keys
+  const Vec3f* sorted;  // points sorted by (cloud, x)
   const std::int32_t* position;
   const std::int64_t* offsets;
-  const Stripes* stripes;
   int num_clouds, k;
   Vec3f* normals;
-
-  /// Candidates at sorted positions from..(to) while in stripe t and gy2 + dx^2 <= bound, stepping by dir.
-  PERCH2_HD void sweep(std::int64_t s, std::int64_t end, int dir, std::uint32_t t, Vec3f q, float gy2,
-                       std::int32_t* idx, float* d2, float& bound) const {
-    for (; s != end && std::uint32_t(keys[s] >> 32) == t; s += dir) {
-      const float dx = sorted[s].x - q.x;
-      if (gy2 + dx * dx > bound) break;
-      const float d = knn_sq_distance(sorted[s], q);
-      if (d <= bound && knn_push(k, idx, d2, INFINITY, d, std::int32_t(s))) bound = d2[k - 1];
-    }
-  }
-
-  /// First sorted position in [b, e) whose key is not below `key`.
-  PERCH2_HD std::int64_t lower_bound(std::int64_t b, std::int64_t e, std::uint64_t key) const {
-    while (b < e) {
-      const std::int64_t m = (b + e) / 2;
-      if (keys[m] < key)
-        b = m + 1;
-      else
-        e = m;
-    }
-    return b;
-  }
-
   PERCH2_HD void operator()(std::int64_t i) const { normal(i, find_segment(offsets, num_clouds, i)); }
 
   /// Point i of cloud c.
   PERCH2_HD void normal(std::int64_t i, int c) const {
     const std::int64_t s0 = position[i], b = offsets[c], e = offsets[c + 1];
-    const Stripes st = stripes[c];
     const Vec3f q = sorted[s0];
-    const std::uint32_t t0 = std::uint32_t(keys[s0] >> 32), last = std::uint32_t(keys[e - 1] >> 32);
     std::int32_t idx[kMaxCovarianceNeighbors];
     float d2[kMaxCovarianceNeighbors];
     knn_clear(k, idx, d2);
     float bound = INFINITY;
-    sweep(s0, e, 1, t0, q, 0.f, idx, d2, bound);
-    sweep(s0 - 1, b - 1, -1, t0, q, 0.f, idx, d2, bound);
-    // Stripes above and below, nearest first; a direction ends once its y gap alone exceeds the bound.
-    bool up = t0 < last;
-    bool down = t0 > 0;
-    for (std::uint32_t j = 1; up || down; ++j) {
-      if (up) {
-        const std::uint32_t t = t0 + j;
-        const float gap = max_f(st.y0 + float(t) * st.height - q.y - st.slack, 0.f);
-        if (gap * gap > bound) {
-          up = false;
-        } else {
-          const std::int64_t p = lower_bound(b, e, stripe_key(t, q.x));
-          sweep(p, e, 1, t, q, gap * gap, idx, d2, bound);
-          sweep(p - 1, b - 1, -1, t, q, gap * gap, idx, d2, bound);
-          up = t < last;
-        }
-      }
-      if (down) {
-        const std::uint32_t t = t0 - j;
-        const float gap = max_f(q.y - (st.y0 + float(t + 1) * st.height) - st.slack, 0.f);
-        if (gap * gap > bound) {
-          down = false;
-        } else {
-          const std::int64_t p = lower_bound(b, e, stripe_key(t, q.x));
-          sweep(p, e, 1, t, q, gap * gap, idx, d2, bound);
-          sweep(p - 1, b - 1, -1, t, q, gap * gap, idx, d2, bound);
-          down = t > 0;
-        }
-      }
+    for (std::int64_t s = s0; s < e; ++s) {
+      const float dx = sorted[s].x - q.x;
+      if (dx * dx > bound) break;
+      const float d = knn_sq_distance(sorted[s], q);
+      if (d <= bound && knn_push(k, idx, d2, INFINITY, d, std::int32_t(s))) bound = d2[k - 1];
+    }
+    for (std::int64_t s = s0 - 1; s >= b; --s) {
+      const float dx = sorted[s].x - q.x;
+      if (dx * dx > bound) break;
+      const float d = knn_sq_distance(sorted[s], q);
+      if (d <= bound && knn_push(k, idx, d2, INFINITY, d, std::int32_t(s))) bound = d2[k - 1];
     }
     int n = 0;
     while (n < k && idx[n] >= 0) ++n;
@@ -617,7 +514,6 @@ struct RegisterClouds {
   std::int32_t* corr;              // 2 x num_points
   std::int64_t num_points;
   int normals;  // 0: none (ICP), 1: k nearest neighbours (x-sorted sweep), 2: pixel neighbourhoods
-  PlanStripes plan_stripes;
   SortKeys sort_keys;
   SortClouds sort_clouds;
   ScatterSorted scatter_sorted;
@@ -632,8 +528,7 @@ struct RegisterClouds {
     const std::int64_t b = offsets[h], e = offsets[h + 1];
     for (std::int64_t i = b; i < e; ++i) corr[i] = corr[num_points + i] = -1;
     if (normals != 0) {
-      if (normals == 1) plan_stripes(h);
-      for (std::int64_t i = b; i < e; ++i) sort_keys.key(i, h);
+      for (std::int64_t i = b; i < e; ++i) sort_keys(i);
       sort_clouds(h);
       if (normals == 1) {
         for (std::int64_t i = b; i < e; ++i) scatter_sorted(i);
@@ -683,8 +578,7 @@ struct Registration<System>::Impl {
     thrust::device_vector<std::int64_t> offsets, block_begin, hyp_blocks;
     thrust::device_vector<std::int32_t> segment, block_hyp, corr, key_pixel, order, pixel, position;
     thrust::device_vector<std::int32_t> any_active{1};
-    thrust::device_vector<std::uint64_t> key_stripe;
-    thrust::device_vector<reg_detail::Stripes> stripes;
+    thrust::device_vector<float> key_x;
     thrust::device_vector<reg_detail::HypState> state;
     thrust::device_vector<reg_detail::Accum> blocks;
     TempAllocator temp;
@@ -757,20 +651,18 @@ struct Registration<System>::Impl {
                                                                                                 : 1;
     const Vec3f* tn = gs ? ptr(normals_for(gs->k_neighbors)) : nullptr;
     Vec3f* normals = gs ? reuse(w.normals, un, allocs) : nullptr;
-    std::uint64_t* ks = normal_mode == 1 ? reuse(w.key_stripe, un, allocs) : nullptr;
-    reg_detail::Stripes* stripes = normal_mode == 1 ? reuse(w.stripes, unum, allocs) : nullptr;
+    float* kx = normal_mode == 1 ? reuse(w.key_x, un, allocs) : nullptr;
     std::int32_t* kp = normal_mode == 2 ? reuse(w.key_pixel, un, allocs) : nullptr;
     std::int32_t* order = gs ? reuse(w.order, un, allocs) : nullptr;
     const std::int32_t* pixel = normal_mode == 2 ? upload(w.pixel, src.pixel, allocs) : nullptr;
     std::int32_t* position = normal_mode == 1 ? reuse(w.position, un, allocs) : nullptr;
     Vec3f* sorted = normal_mode == 1 ? reuse(w.sorted, un, allocs) : nullptr;
     const float md = gs ? gs->pixel_neighbour_max_distance_m : 0.f;
-    const reg_detail::PlanStripes plan_stripes{points, offsets, gs ? gs->k_neighbors : 0, stripes};
-    const reg_detail::SortKeys sort_keys{points, offsets, num, stripes, pixel, ks, kp, order};
-    const reg_detail::SortClouds sort_clouds{offsets, ks, kp, order};
+    const reg_detail::SortKeys sort_keys{points, pixel, kx, kp, order};
+    const reg_detail::SortClouds sort_clouds{offsets, kx, kp, order};
     const reg_detail::ScatterSorted scatter_sorted{points, order, sorted, position};
-    const reg_detail::SourceKnnNormals knn_normals{
-        sorted, ks, position, offsets, stripes, num, gs ? gs->k_neighbors : 0, normals};
+    const reg_detail::SourceKnnNormals knn_normals{sorted, position, offsets, num, gs ? gs->k_neighbors : 0,
+                                                   normals};
     const reg_detail::SourcePixelNormals pixel_normals{
         points,  offsets, pixel, kp, order, num, gs ? gs->image_width_px : 0, gs ? gs->pixel_radius_px : 0,
         md * md, normals};
@@ -783,19 +675,14 @@ struct Registration<System>::Impl {
     if constexpr (System::registration_whole_clouds) {
       const int workers = reg_detail::whole_cloud_workers();
       write_at(w.any_active, 0, std::int32_t(0));  // the clouds' shared counter
-      thrust::for_each(
-          thrust::device, pts, pts + workers,
-          reg_detail::RegisterClouds{num, offsets, hyp_blocks, corr, n, normal_mode, plan_stripes, sort_keys,
-                                     sort_clouds, scatter_sorted, knn_normals, pixel_normals, init, pass,
-                                     step, ptr(w.any_active)});
+      thrust::for_each(thrust::device, pts, pts + workers,
+                       reg_detail::RegisterClouds{num, offsets, hyp_blocks, corr, n, normal_mode, sort_keys,
+                                                  sort_clouds, scatter_sorted, knn_normals, pixel_normals,
+                                                  init, pass, step, ptr(w.any_active)});
       shape.launch("register_clouds", 1, workers);
     } else {
       thrust::fill_n(thrust::device, corr, std::int64_t(2 * un), std::int32_t(-1));
       if (gs) {
-        if (normal_mode == 1) {
-          thrust::for_each(thrust::device, hyps, hyps + num, plan_stripes);
-          shape.launch("source_stripes", 1, num);
-        }
         thrust::for_each(thrust::device, pts, pts + n, sort_keys);
         thrust::for_each(thrust::device, hyps, hyps + num, sort_clouds);
         shape.launch("source_sort_keys", 1, n);
