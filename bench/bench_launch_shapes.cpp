@@ -165,9 +165,14 @@ void registration_shapes(int num_sources) {
   const RegistrationResult r = reg.gicp(sources, seg, s);
   const LaunchShape omp = reg.last_launch_shape();
   print_header();
-  for (const auto& p : omp.passes) print_pass("thrust_omp", "gicp", p);
-  // CUDA: the same passes; only the per-iteration pass's items depend on the System.
-  const LaunchShape::Pass* lin = omp.find("linearize");
+  for (const auto& p : omp.passes) print_pass("thrust_omp", "gicp (whole clouds)", p);
+  // CUDA runs the pass structure, measured on OpenMP as OmpPassesSystem; only the per-iteration pass's
+  // items depend on the System.
+  const thrust_backend::Registration<thrust_backend::OmpPassesSystem> passes_reg(target);
+  passes_reg.gicp(sources, seg, s);
+  const LaunchShape passes = passes_reg.last_launch_shape();
+  for (const auto& p : passes.passes) print_pass("omp passes", "gicp", p);
+  const LaunchShape::Pass* lin = passes.find("linearize");
   LaunchShape::Pass cuda_lin = *lin;
   cuda_lin.elements_per_item = CudaSystem::registration_points_per_item;
   cuda_lin.max_items = thrust_backend::registration_items(sources.offsets, cuda_lin.elements_per_item);
@@ -176,8 +181,10 @@ void registration_shapes(int num_sources) {
   const int most = *std::max_element(r.iterations.begin(), r.iterations.end());
   std::printf(
       "\nIterations: most %d of max_iterations %d (passes stop once no hypothesis is active, checked "
-      "every 4); device allocations per gicp() call: cold %lld, warm %lld\n",
-      most, s.max_iterations, (long long)cold, (long long)omp.device_allocations);
+      "every 4); parallel launches per gicp() call: thrust_omp %lld, passes %lld; device allocations per "
+      "gicp() call (thrust_omp): cold %lld, warm %lld\n",
+      most, s.max_iterations, (long long)launches(omp), (long long)launches(passes), (long long)cold,
+      (long long)omp.device_allocations);
 }
 
 /// The kNN stage's launches for a System: one query, point or cell per work item on every System, so the

@@ -1,7 +1,11 @@
 // Registration: batched ICP (6-DoF and table x, y, yaw) and many-to-many GICP on every CPU-runnable backend.
 // Partial views are rendered by the reference renderer; sources are a known perturbation of a subset of the
 // target's samples, so the noise-free optimum is exactly the inverse perturbation.
+#include <dlfcn.h>
+#include <omp.h>
+
 #include <Eigen/Geometry>
+#include <atomic>
 #include <cmath>
 #include <random>
 
@@ -13,6 +17,18 @@
 
 using namespace perch2;
 using perch2::test::vga_camera;
+using PassesRegistration = thrust_backend::Registration<thrust_backend::OmpPassesSystem>;
+
+// Counts OpenMP parallel regions: this definition of libgomp's entry point for `#pragma omp parallel`
+// (what Thrust's OpenMP algorithms compile to) interposes libgomp's for the whole process and forwards to it.
+static std::atomic<long> g_parallel_regions{0};
+extern "C" __attribute__((visibility("default"))) void GOMP_parallel(void (*fn)(void*), void* data,
+                                                                     unsigned num_threads, unsigned flags) {
+  using Fn = void (*)(void (*)(void*), void*, unsigned, unsigned);
+  static const Fn next = reinterpret_cast<Fn>(dlsym(RTLD_NEXT, "GOMP_parallel"));
+  ++g_parallel_regions;
+  next(fn, data, num_threads, flags);
+}
 
 namespace {
 
@@ -442,6 +458,46 @@ TEST_CASE("backends agree on ICP and GICP") {
   }
 }
 
+TEST_CASE("backends agree on GICP whatever the clouds' extents and position (source normals' sweep)") {
+  // The Thrust backend finds each source point's k neighbours by sweeping its cloud's points sorted by x;
+  // the reference by FLANN. Far from the origin, for a thin vertical strip (every point within 1.5 cm in x:
+  // the sweep's worst case) and a thin horizontal strip, both must find the same neighbours, hence the same
+  // registration.
+  const Scene& sc = scene();
+  Pose far = Pose::Identity();
+  far.translation() = Eigen::Vector3f(0.7f, -2.5f, 3.f);
+  CloudBatch target, view;
+  append_moved(target, sc.target, far);
+  append_moved(view, sc.view, far);
+  const Eigen::Vector3f c = centroid(view);
+  CloudBatch vertical, horizontal;  // strips of the view 1.5 cm wide through its centroid
+  for (std::size_t i = 0; i < view.size(); ++i) {
+    CloudBatch& strip = std::abs(view.x[i] - c.x()) < 0.0075f ? vertical : horizontal;
+    if (&strip == &horizontal && !(std::abs(view.y[i] - c.y()) < 0.0075f)) continue;
+    strip.x.push_back(view.x[i]), strip.y.push_back(view.y[i]), strip.z.push_back(view.z[i]);
+    strip.rgb.push_back(view.rgb[i]), strip.pixel.push_back(view.pixel[i]), strip.cloud.push_back(0);
+  }
+  vertical.offsets = {0, std::int64_t(vertical.size())};
+  horizontal.offsets = {0, std::int64_t(horizontal.size())};
+  REQUIRE(vertical.size() > 20);
+  REQUIRE(horizontal.size() > 20);
+  std::mt19937 rng(41);
+  CloudBatch sources;
+  for (const CloudBatch* cloud : {&view, &vertical, &horizontal})
+    for (int k = 0; k < 2; ++k) append_moved(sources, *cloud, perturbation(rng, c, 4 * kDeg, 0.01f));
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  const RegistrationResult a = cpu::Registration(target).gicp(sources, seg, gicp_settings());
+  const RegistrationResult b = thrust_omp::Backend::Registration(target).gicp(sources, seg, gicp_settings());
+  for (std::size_t h = 0; h < a.size(); ++h) {
+    CAPTURE(h);
+    // As in "backends agree on ICP and GICP" (double vs float sums of the same cost).
+    const Pose E = a.T_corr[h].inverse() * b.T_corr[h];
+    CHECK(rotation_angle(E.linear()) < 0.01f * kDeg);
+    CHECK((b.T_corr[h] * c - a.T_corr[h] * c).norm() < 1e-4f);
+    CHECK(std::abs(a.inliers[h] - b.inliers[h]) <= 2);
+  }
+}
+
 TEST_CASE_TEMPLATE("a hypothesis that hits max_iterations keeps its last iterate", B,
                    PERCH2_CPU_RUNNABLE_BACKENDS) {
   const Scene& sc = scene();
@@ -560,7 +616,7 @@ TEST_CASE_TEMPLATE("registration rejects bad input with a clear error", B, PERCH
   CHECK_THROWS_WITH_AS(reg.gicp(no_pixels, {0}, g), doctest::Contains("no pixel index"), InvalidInput);
 }
 
-TEST_CASE("thrust registration stops once every hypothesis is done and reuses its workspace") {
+TEST_CASE("thrust registration in passes stops once every hypothesis is done and reuses its workspace") {
   // Small perturbations converge in a few iterations: the passes must stop soon after (every
   // kActiveCheckInterval = 4 iterations the host checks), not run all max_iterations; a second identical
   // call allocates nothing on the device.
@@ -570,7 +626,7 @@ TEST_CASE("thrust registration stops once every hypothesis is done and reuses it
   CloudBatch sources;
   for (int k = 0; k < 4; ++k) append_moved(sources, sc.view, perturbation(rng, c, 2 * kDeg, 0.005f));
   const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
-  const thrust_omp::Backend::Registration reg(sc.target);
+  const PassesRegistration reg(sc.target);  // the pass structure a GPU runs
   GicpSettings s = gicp_settings();
   s.max_iterations = 200;
   const RegistrationResult r = reg.gicp(sources, seg, s);
@@ -585,10 +641,123 @@ TEST_CASE("thrust registration stops once every hypothesis is done and reuses it
   REQUIRE(linearize != nullptr);
   CHECK(linearize->launches >= most);
   CHECK(linearize->launches <= most + 4);
-  const std::int64_t per_item = thrust_backend::OmpSystem::registration_points_per_item;
+  const std::int64_t per_item = thrust_backend::OmpPassesSystem::registration_points_per_item;
   CHECK(linearize->max_items >= std::int64_t(sources.size()) / per_item);
   CHECK(shape.device_allocations > 0);
   const RegistrationResult again = reg.gicp(sources, seg, s);
   CHECK(again.iterations == r.iterations);
   CHECK(reg.last_launch_shape().device_allocations == 0);
+}
+
+namespace {
+
+/// Sources for the pass/whole-cloud comparison: perturbed, noisy views on two target segments (the object
+/// and a copy 3 cm away), an empty cloud, a cloud into the empty segment and one too sparse for a covariance.
+struct MixedBatch {
+  CloudBatch targets, sources;
+  std::vector<std::int32_t> segment;
+};
+
+MixedBatch mixed_batch() {
+  const Scene& sc = scene();
+  MixedBatch m;
+  append_moved(m.targets, sc.target, Pose::Identity());
+  m.targets.offsets.push_back(m.targets.offsets.back());  // segment 1: empty
+  Pose shift = Pose::Identity();
+  shift.translation() = Eigen::Vector3f(0.03f, 0.f, 0.f);
+  append_moved(m.targets, sc.target, shift);
+  for (std::size_t i = std::size_t(m.targets.offsets[2]); i < m.targets.size(); ++i) m.targets.cloud[i] = 2;
+  std::mt19937 rng(37);
+  std::normal_distribution<float> noise(0.f, 0.0005f);
+  const Eigen::Vector3f c = centroid(sc.view);
+  for (int k = 0; k < 9; ++k) {
+    const float angle = float(2 + 2 * k) * kDeg, dist = 0.004f * float(k);
+    append_moved(m.sources, sc.view, perturbation(rng, c, angle, dist));
+    m.segment.push_back(k % 3 == 2 ? 2 : 0);
+  }
+  for (std::size_t i = 0; i < m.sources.size(); ++i) m.sources.z[i] += noise(rng);
+  m.sources.offsets.push_back(m.sources.offsets.back());  // an empty cloud
+  m.segment.push_back(0);
+  append_moved(m.sources, sc.view, Pose::Identity());  // a cloud aligned to the empty segment
+  m.segment.push_back(1);
+  CloudBatch two;  // two points: no covariance, fewer than min_inliers
+  append_moved(two, sc.view, Pose::Identity());
+  two.offsets = {0, 2}, two.x.resize(2), two.y.resize(2), two.z.resize(2), two.rgb.resize(2),
+  two.pixel.resize(2), two.cloud.resize(2);
+  append_moved(m.sources, two, Pose::Identity());
+  m.segment.push_back(0);
+  return m;
+}
+
+void require_identical(const RegistrationResult& a, const RegistrationResult& b) {
+  REQUIRE(a.size() == b.size());
+  for (std::size_t h = 0; h < a.size(); ++h) {
+    CAPTURE(h);
+    CHECK(a.T_corr[h].matrix() == b.T_corr[h].matrix());
+    CHECK(a.iterations[h] == b.iterations[h]);
+    CHECK(a.inliers[h] == b.inliers[h]);
+    CHECK((a.final_error[h] == b.final_error[h] ||
+           (std::isinf(a.final_error[h]) && std::isinf(b.final_error[h]))));
+    CHECK(a.converged[h] == b.converged[h]);
+  }
+}
+
+}  // namespace
+
+TEST_CASE("thrust registration of whole clouds per thread equals the pass structure bit for bit") {
+  // OmpSystem registers each cloud start to end in one thread; OmpPassesSystem launches the GPU's passes.
+  // Both apply the same functors to the same values in the same order, so every result is identical.
+  const MixedBatch m = mixed_batch();
+  const thrust_omp::Backend::Registration whole(m.targets);
+  const PassesRegistration passes(m.targets);
+  SUBCASE("ICP, 6-DoF") {
+    require_identical(whole.icp(m.sources, m.segment, icp_settings()),
+                      passes.icp(m.sources, m.segment, icp_settings()));
+  }
+  SUBCASE("ICP, table x, y, yaw, few iterations") {
+    IcpSettings s = icp_settings();
+    s.dof = Dof::TableXYYaw;
+    s.max_iterations = 5;
+    require_identical(whole.icp(m.sources, m.segment, s), passes.icp(m.sources, m.segment, s));
+  }
+  SUBCASE("GICP, k-nearest-neighbour covariances") {
+    require_identical(whole.gicp(m.sources, m.segment, gicp_settings()),
+                      passes.gicp(m.sources, m.segment, gicp_settings()));
+  }
+  SUBCASE("GICP, pixel-neighbourhood covariances, ICP warm-up") {
+    GicpSettings s = gicp_settings();
+    s.source_covariance = SourceCovariance::FromPixelNeighbourhood;
+    s.image_width_px = vga_camera().width;
+    s.icp_warmup_iterations = 3;
+    require_identical(whole.gicp(m.sources, m.segment, s), passes.gicp(m.sources, m.segment, s));
+  }
+}
+
+TEST_CASE("thrust registration on CPU systems: one parallel region per call") {
+  // Whole clouds per work item (OmpSystem::registration_whole_clouds): one pass whose items are the threads,
+  // whatever the number of iterations, instead of ~2 per iteration (each a barrier that waits for the
+  // slowest, or a descheduled, thread on a shared CPU).
+  const MixedBatch m = mixed_batch();
+  const thrust_omp::Backend::Registration whole(m.targets);
+  const PassesRegistration passes(m.targets);
+  GicpSettings s = gicp_settings();
+  s.translation_epsilon_m = s.rotation_epsilon_rad = 0.f;  // never converge: max_iterations passes
+  s.max_iterations = 12;
+  whole.gicp(m.sources, m.segment, s);  // warm: target normals and workspace built
+  passes.gicp(m.sources, m.segment, s);
+  const long before_whole = g_parallel_regions.load();
+  const RegistrationResult r = whole.gicp(m.sources, m.segment, s);
+  const long whole_regions = g_parallel_regions.load() - before_whole;
+  const long before_passes = g_parallel_regions.load();
+  passes.gicp(m.sources, m.segment, s);
+  const long passes_regions = g_parallel_regions.load() - before_passes;
+  CHECK(*std::max_element(r.iterations.begin(), r.iterations.end()) == 12);
+  CHECK(passes_regions >= 2 * 12);  // the counter sees the passes' regions
+  CHECK(whole_regions == 1);
+  const thrust_backend::LaunchShape shape = whole.last_launch_shape();
+  REQUIRE(shape.passes.size() == 1);
+  CHECK(shape.passes[0].name == "register_clouds");
+  CHECK(shape.passes[0].launches == 1);
+  CHECK(shape.passes[0].items == omp_get_max_threads());
+  CHECK(shape.device_allocations == 0);  // the workspace is warm
 }

@@ -3,4 +3,5 @@
 
 namespace perch2::thrust_backend {
 template class KnnIndex<OmpSystem>;
-}
+template class KnnIndex<OmpPassesSystem>;  // the registration in passes (OmpPassesSystem) uses it
+}  // namespace perch2::thrust_backend

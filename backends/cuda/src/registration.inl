@@ -4,6 +4,8 @@
 // equations summed per block), step over hypotheses (sum the hypothesis' blocks in a fixed order, LM accept/
 // reject, damped LDL^T solve, pose update, convergence flag) }. Converged or stopped hypotheses skip both.
 // The host only launches passes: the one device->host copy is the final per-hypothesis state.
+// CPU systems (System::registration_whole_clouds) run the same functors per source cloud instead: one
+// parallel region per call whose work items pull whole clouds (all their iterations) from a counter.
 // The targets live in the kNN stage's KnnIndex<System>: correspondences and target normals are grid_knn ball
 // searches started from its per-cell representatives (exact, within the correspondence distance cap).
 #include <thrust/copy.h>
@@ -18,6 +20,9 @@
 #include <limits>
 #include <map>
 #include <mutex>
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
+#include <omp.h>
+#endif
 
 #include "perch2/core/segments.hpp"
 #include "perch2/cuda/knn.hpp"
@@ -180,8 +185,10 @@ struct SourceKnnNormals {
   const std::int64_t* offsets;
   int num_clouds, k;
   Vec3f* normals;
-  PERCH2_HD void operator()(std::int64_t i) const {
-    const int c = find_segment(offsets, num_clouds, i);
+  PERCH2_HD void operator()(std::int64_t i) const { normal(i, find_segment(offsets, num_clouds, i)); }
+
+  /// Point i of cloud c.
+  PERCH2_HD void normal(std::int64_t i, int c) const {
     const std::int64_t s0 = position[i], b = offsets[c], e = offsets[c + 1];
     const Vec3f q = sorted[s0];
     std::int32_t idx[kMaxCovarianceNeighbors];
@@ -228,8 +235,10 @@ struct SourcePixelNormals {
     return b;
   }
 
-  PERCH2_HD void operator()(std::int64_t i) const {
-    const int c = find_segment(offsets, num_clouds, i);
+  PERCH2_HD void operator()(std::int64_t i) const { normal(i, find_segment(offsets, num_clouds, i)); }
+
+  /// Point i of cloud c.
+  PERCH2_HD void normal(std::int64_t i, int c) const {
     const Vec3f p = points[i];
     const int u = pixel[i] % width, v = pixel[i] / width;
     Vec3f s1{0.f, 0.f, 0.f};
@@ -492,6 +501,67 @@ struct StepHypothesis {
   }
 };
 
+/// Registers whole source clouds per work item (CPU systems, System::registration_whole_clouds): each of
+/// the `workers` items pulls clouds from the shared counter `next` and runs every stage of one cloud in
+/// order, the same functors the passes launch: clear its correspondences, sort its points and estimate its
+/// normals (GICP), initialise, then per iteration linearise its blocks and step, until it stops. The same
+/// functions of the same values in the same order: results equal the passes' bit for bit, in one parallel
+/// region per call, and no thread waits at a barrier for a descheduled one.
+struct RegisterClouds {
+  int num_clouds;
+  const std::int64_t* offsets;     // per cloud: its points
+  const std::int64_t* hyp_blocks;  // per cloud: its blocks of the linearisation pass
+  std::int32_t* corr;              // 2 x num_points
+  std::int64_t num_points;
+  int normals;  // 0: none (ICP), 1: k nearest neighbours (x-sorted sweep), 2: pixel neighbourhoods
+  SortKeys sort_keys;
+  SortClouds sort_clouds;
+  ScatterSorted scatter_sorted;
+  SourceKnnNormals knn_normals;
+  SourcePixelNormals pixel_normals;
+  InitState init;
+  LinearizeBlock pass;
+  StepHypothesis step;
+  int* next;
+
+  PERCH2_HD void cloud(int h) const {
+    const std::int64_t b = offsets[h], e = offsets[h + 1];
+    for (std::int64_t i = b; i < e; ++i) corr[i] = corr[num_points + i] = -1;
+    if (normals != 0) {
+      for (std::int64_t i = b; i < e; ++i) sort_keys(i);
+      sort_clouds(h);
+      if (normals == 1) {
+        for (std::int64_t i = b; i < e; ++i) scatter_sorted(i);
+        for (std::int64_t i = b; i < e; ++i) knn_normals.normal(i, h);
+      } else {
+        for (std::int64_t i = b; i < e; ++i) pixel_normals.normal(i, h);
+      }
+    }
+    init(h);
+    // StepHypothesis deactivates the cloud at max_iterations at the latest.
+    while (step.state[h].active) {
+      for (std::int64_t k = hyp_blocks[h]; k < hyp_blocks[h + 1]; ++k) pass(k);
+      step(h);
+    }
+  }
+
+  PERCH2_HD void operator()(std::int64_t) const {
+    cuda::atomic_ref<int, cuda::thread_scope_device> counter(*next);
+    for (int h = counter.fetch_add(1, cuda::memory_order_relaxed); h < num_clouds;
+         h = counter.fetch_add(1, cuda::memory_order_relaxed))
+      cloud(h);
+  }
+};
+
+/// Work items of the whole-cloud pass: the threads of a CPU system (each pulls clouds until none is left).
+inline int whole_cloud_workers() {
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
+  return omp_get_max_threads();
+#else
+  return 1;  // GPU systems register in passes
+#endif
+}
+
 }  // namespace reg_detail
 
 template <class System>
@@ -571,65 +641,75 @@ struct Registration<System>::Impl {
     Vec3f* centroid = reuse(w.centroid, unum, allocs);
     reg_detail::HypState* state = reuse(w.state, unum, allocs);
     std::int32_t* corr = reuse(w.corr, 2 * un, allocs);
-    thrust::fill_n(thrust::device, corr, std::int64_t(2 * un), std::int32_t(-1));
     reg_detail::Accum* blocks = reuse(w.blocks, std::size_t(num_blocks), allocs);
-    Vec3f* normals = nullptr;
-    const Vec3f* tn = nullptr;
     const auto pts = thrust::counting_iterator<std::int64_t>(0);
-
-    if (gs) {
-      tn = ptr(normals_for(gs->k_neighbors));
-      normals = reuse(w.normals, un, allocs);
-      // Sort each cloud's points (by x for the kNN sweep, by pixel for pixel neighbourhoods) with one
-      // device-callable heap sort per cloud.
-      const bool by_pixel = gs->source_covariance == SourceCovariance::FromPixelNeighbourhood;
-      float* kx = by_pixel ? nullptr : reuse(w.key_x, un, allocs);
-      std::int32_t* kp = by_pixel ? reuse(w.key_pixel, un, allocs) : nullptr;
-      std::int32_t* order = reuse(w.order, un, allocs);
-      const std::int32_t* pixel = by_pixel ? upload(w.pixel, src.pixel, allocs) : nullptr;
-      thrust::for_each(thrust::device, pts, pts + n, reg_detail::SortKeys{points, pixel, kx, kp, order});
-      thrust::for_each(thrust::device, thrust::counting_iterator<int>(0), thrust::counting_iterator<int>(num),
-                       reg_detail::SortClouds{offsets, kx, kp, order});
-      shape.launch("source_sort_keys", 1, n);
-      shape.launch("source_sort_clouds", 1, num);
-      if (!by_pixel) {
-        std::int32_t* position = reuse(w.position, un, allocs);
-        Vec3f* sorted = reuse(w.sorted, un, allocs);
-        thrust::for_each(thrust::device, pts, pts + n,
-                         reg_detail::ScatterSorted{points, order, sorted, position});
-        thrust::for_each(
-            thrust::device, pts, pts + n,
-            reg_detail::SourceKnnNormals{sorted, position, offsets, num, gs->k_neighbors, normals});
-        shape.launch("source_normals", 1, n);
-      } else {
-        const float md = gs->pixel_neighbour_max_distance_m;
-        thrust::for_each(
-            thrust::device, pts, pts + n,
-            reg_detail::SourcePixelNormals{points, offsets, pixel, kp, order, num, gs->image_width_px,
-                                           gs->pixel_radius_px, md * md, normals});
-        shape.launch("source_normals", 1, n);
-      }
-    }
-
     const auto hyps = thrust::counting_iterator<int>(0);
-    thrust::for_each(thrust::device, hyps, hyps + num,
-                     reg_detail::InitState{points, offsets, P.lambda_initial, centroid, state});
-    shape.launch("init", 1, num);
+    // Source normals (GICP): each cloud's points sorted (by x for the kNN sweep, by pixel for pixel
+    // neighbourhoods) with one device-callable heap sort per cloud.
+    const int normal_mode = !gs                                                                 ? 0
+                            : gs->source_covariance == SourceCovariance::FromPixelNeighbourhood ? 2
+                                                                                                : 1;
+    const Vec3f* tn = gs ? ptr(normals_for(gs->k_neighbors)) : nullptr;
+    Vec3f* normals = gs ? reuse(w.normals, un, allocs) : nullptr;
+    float* kx = normal_mode == 1 ? reuse(w.key_x, un, allocs) : nullptr;
+    std::int32_t* kp = normal_mode == 2 ? reuse(w.key_pixel, un, allocs) : nullptr;
+    std::int32_t* order = gs ? reuse(w.order, un, allocs) : nullptr;
+    const std::int32_t* pixel = normal_mode == 2 ? upload(w.pixel, src.pixel, allocs) : nullptr;
+    std::int32_t* position = normal_mode == 1 ? reuse(w.position, un, allocs) : nullptr;
+    Vec3f* sorted = normal_mode == 1 ? reuse(w.sorted, un, allocs) : nullptr;
+    const float md = gs ? gs->pixel_neighbour_max_distance_m : 0.f;
+    const reg_detail::SortKeys sort_keys{points, pixel, kx, kp, order};
+    const reg_detail::SortClouds sort_clouds{offsets, kx, kp, order};
+    const reg_detail::ScatterSorted scatter_sorted{points, order, sorted, position};
+    const reg_detail::SourceKnnNormals knn_normals{sorted, position, offsets, num, gs ? gs->k_neighbors : 0,
+                                                   normals};
+    const reg_detail::SourcePixelNormals pixel_normals{
+        points,  offsets, pixel, kp, order, num, gs ? gs->image_width_px : 0, gs ? gs->pixel_radius_px : 0,
+        md * md, normals};
+    const reg_detail::InitState init{points, offsets, P.lambda_initial, centroid, state};
     const reg_detail::LinearizeBlock pass{P,       grid(),   target_points(), tn,          points, normals,
                                           segment, centroid, block_hyp,       block_begin, state,  corr,
                                           n,       blocks};
     const reg_detail::StepHypothesis step{P, centroid, hyp_blocks, blocks, state};
-    for (int it = 0; it < P.max_iterations; ++it) {
-      if (it > 0 && it % reg_detail::kActiveCheckInterval == 0) {
-        shape.launch("active_check", 1, num);
-        write_at(w.any_active, 0, std::int32_t(0));
-        thrust::for_each(thrust::device, hyps, hyps + num, reg_detail::FlagActive{state, ptr(w.any_active)});
-        if (read_at(w.any_active, 0) == 0) break;
+
+    if constexpr (System::registration_whole_clouds) {
+      const int workers = reg_detail::whole_cloud_workers();
+      write_at(w.any_active, 0, std::int32_t(0));  // the clouds' shared counter
+      thrust::for_each(thrust::device, pts, pts + workers,
+                       reg_detail::RegisterClouds{num, offsets, hyp_blocks, corr, n, normal_mode, sort_keys,
+                                                  sort_clouds, scatter_sorted, knn_normals, pixel_normals,
+                                                  init, pass, step, ptr(w.any_active)});
+      shape.launch("register_clouds", 1, workers);
+    } else {
+      thrust::fill_n(thrust::device, corr, std::int64_t(2 * un), std::int32_t(-1));
+      if (gs) {
+        thrust::for_each(thrust::device, pts, pts + n, sort_keys);
+        thrust::for_each(thrust::device, hyps, hyps + num, sort_clouds);
+        shape.launch("source_sort_keys", 1, n);
+        shape.launch("source_sort_clouds", 1, num);
+        if (normal_mode == 1) {
+          thrust::for_each(thrust::device, pts, pts + n, scatter_sorted);
+          thrust::for_each(thrust::device, pts, pts + n, knn_normals);
+        } else {
+          thrust::for_each(thrust::device, pts, pts + n, pixel_normals);
+        }
+        shape.launch("source_normals", 1, n);
       }
-      thrust::for_each(nosync(), pts, pts + num_blocks, pass);  // no host wait per iteration
-      thrust::for_each(nosync(), hyps, hyps + num, step);
-      shape.launch("linearize", int(per_item), num_blocks);
-      shape.launch("step", 1, num);
+      thrust::for_each(thrust::device, hyps, hyps + num, init);
+      shape.launch("init", 1, num);
+      for (int it = 0; it < P.max_iterations; ++it) {
+        if (it > 0 && it % reg_detail::kActiveCheckInterval == 0) {
+          shape.launch("active_check", 1, num);
+          write_at(w.any_active, 0, std::int32_t(0));
+          thrust::for_each(thrust::device, hyps, hyps + num,
+                           reg_detail::FlagActive{state, ptr(w.any_active)});
+          if (read_at(w.any_active, 0) == 0) break;
+        }
+        thrust::for_each(nosync(), pts, pts + num_blocks, pass);  // no host wait per iteration
+        thrust::for_each(nosync(), hyps, hyps + num, step);
+        shape.launch("linearize", int(per_item), num_blocks);
+        shape.launch("step", 1, num);
+      }
     }
 
     std::vector<reg_detail::HypState> host_state;

@@ -4,3 +4,4 @@
 static_assert(THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP,
               "registration_omp.cpp must build for Thrust's OMP system");
 template class perch2::thrust_backend::Registration<perch2::thrust_backend::OmpSystem>;
+template class perch2::thrust_backend::Registration<perch2::thrust_backend::OmpPassesSystem>;

@@ -52,5 +52,6 @@ class PERCH2_API KnnIndex {
 
 extern template class KnnIndex<CudaSystem>;
 extern template class KnnIndex<OmpSystem>;
+extern template class KnnIndex<OmpPassesSystem>;
 
 }  // namespace perch2::thrust_backend

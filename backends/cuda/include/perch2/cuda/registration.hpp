@@ -1,7 +1,9 @@
 // Thrust registration: batched ICP / GICP as per-iteration passes over all (hypothesis, point) pairs —
 // correspondences by the uniform-grid search, per-point normal equations summed per block of points, and a
 // per-hypothesis functor that sums its blocks, solves the damped 6x6 (or 3x3) system and updates its pose
-// and convergence flag. No host round trip per iteration. Algorithm: perch2/registration/registration.hpp.
+// and convergence flag. No host round trip per iteration. On CPU systems (OmpSystem) each thread runs the
+// same functors over whole source clouds pulled from a counter: one parallel region per call. Algorithm:
+// perch2/registration/registration.hpp.
 #pragma once
 
 #include <cstdint>
@@ -41,5 +43,6 @@ class PERCH2_API Registration {
 
 extern template class Registration<CudaSystem>;
 extern template class Registration<OmpSystem>;
+extern template class Registration<OmpPassesSystem>;
 
 }  // namespace perch2::thrust_backend

@@ -36,6 +36,9 @@ struct PERCH2_API CudaSystem {
   /// Registration: source points per work item (each writes a 124-byte partial sum of the normal
   /// equations; 8 gives ~90k threads for 2,400 hypotheses x 300 points and ~40 partial sums per hypothesis).
   static constexpr int registration_points_per_item = 8;
+  /// Registration: false: per iteration one pass over blocks of points and one over hypotheses; true: one
+  /// pass per call whose work items register whole source clouds (see OmpSystem).
+  static constexpr bool registration_whole_clouds = false;
   /// Results equal the reference backend's bit for bit (false only in a PERCH2_CUDA_FMA=ON build).
   static constexpr bool bitwise_reproducible = PERCH2_CUDA_FMA == 0;
   /// Device -> host copies of stage results land in a page-locked (pinned) staging buffer the stage object
@@ -55,15 +58,20 @@ struct PERCH2_API OmpSystem {
   /// slower than the reference backend beside one busy process).
   static constexpr bool render_whole_hypotheses = true;
   static constexpr int registration_points_per_item = 64;  ///< as measured in the README's tables
+  /// A CPU registers each source cloud start to end (all its iterations) in one thread, clouds pulled from a
+  /// shared counter: one parallel region per call instead of ~2 per iteration, each a barrier waiting for
+  /// the slowest (or a descheduled) thread.
+  static constexpr bool registration_whole_clouds = true;
   static constexpr bool bitwise_reproducible = true;
   static constexpr bool pinned_host_buffers = false;  ///< host memory is device memory: copy directly
 };
-/// The CUDA renderer's pass structure run on OpenMP: not faster, but it runs the GPU path's passes (the
-/// same functors and launch plan) against the reference on every CI run.
+/// The CUDA renderer's and registration's pass structure run on OpenMP: not faster, but it runs the GPU
+/// path's passes (the same functors and launch plan) against the reference on every CI run.
 struct PERCH2_API OmpPassesSystem : OmpSystem {
   static constexpr const char* name = "thrust_omp_passes";
   static constexpr std::size_t default_chunk_bytes = std::size_t(4) << 20;  ///< stays in cache
   static constexpr bool render_whole_hypotheses = false;
+  static constexpr bool registration_whole_clouds = false;
 };
 
 /// What the last call of a stage object launched and allocated: lets a GPU user see the launch shapes and
