@@ -346,8 +346,11 @@ PERCH2_HD inline Rgb8 sample_texture(const MeshView& m, float u, float v) {
   const float xf = floorf(x), yf = floorf(y);
   const float wx = x - xf, wy = y - yf;
   const int W = m.texture_width, H = m.texture_height;
-  const int x0 = ((int(xf) % W) + W) % W, y0 = ((int(yf) % H) + H) % H;
-  const int x1 = (x0 + 1) % W, y1 = (y0 + 1) % H;
+  // x is in [-0.5, W - 0.5], so floor(x) in [-1, W - 1]: wrap without integer division (the clamp only
+  // keeps a non-finite coordinate inside the texture).
+  const int x0 = min_int(max_int(select_int(xf < 0.f, W - 1, int(xf)), 0), W - 1);
+  const int y0 = min_int(max_int(select_int(yf < 0.f, H - 1, int(yf)), 0), H - 1);
+  const int x1 = select_int(x0 + 1 == W, 0, x0 + 1), y1 = select_int(y0 + 1 == H, 0, y0 + 1);
   const Rgb8 c00 = m.texture[y0 * W + x0], c10 = m.texture[y0 * W + x1];
   const Rgb8 c01 = m.texture[y1 * W + x0], c11 = m.texture[y1 * W + x1];
   auto mix = [&](float p00, float p10, float p01, float p11) {
