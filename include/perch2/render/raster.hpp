@@ -326,13 +326,14 @@ PERCH2_HD_FORCE_INLINE bool setup_triangle(const PosedVertices& p_cam, const std
   return true;
 }
 
-/// Edge-function test of one ray: on a hit, the depth (z, metres) of the triangle along it.
+/// Edge-function test of one ray: on a hit, the depth (z, metres) of the triangle along it. Branch-free
+/// (the depth is computed for every ray, its value only used on a hit): whether a candidate triangle hits
+/// its sample is close to a coin toss at stride >= 2, which branches would mispredict.
 PERCH2_HD inline bool sample_triangle(const TriangleRaster& t, Vec3f ray, float near_m, float& depth_m) {
-  if (dot(t.n[0], ray) < 0.f || dot(t.n[1], ray) < 0.f || dot(t.n[2], ray) < 0.f) return false;
   const float along_normal = dot(t.normal, ray);
-  if (!(along_normal > 0.f)) return false;
   depth_m = t.offset / along_normal;
-  return depth_m >= near_m;
+  return (dot(t.n[0], ray) >= 0.f) & (dot(t.n[1], ray) >= 0.f) & (dot(t.n[2], ray) >= 0.f) &
+         (along_normal > 0.f) & (depth_m >= near_m);
 }
 
 PERCH2_HD inline std::uint8_t to_u8(float c) {
@@ -455,9 +456,10 @@ PERCH2_HD void rasterize_triangle_run(const MeshView& m, PosedVertices v, int be
       for (int j = t.cover.j0; j < t.cover.j0 + t.cover.height; ++j)
         for (int i = t.cover.i0; i < t.cover.i0 + t.cover.width; ++i) {
           float depth_m;
-          if (sample_triangle(t, grid_ray(K_local, stride, i, j), near_m, depth_m))
-            plot((j - roi_local.j0) * roi_local.width + (i - roi_local.i0),
-                 pack_depth_triangle(depth_m, std::uint32_t(tri)));
+          const bool hit = sample_triangle(t, grid_ray(K_local, stride, i, j), near_m, depth_m);
+          // A miss plots the empty word, which never wins the z-test (a select, not a branch).
+          plot((j - roi_local.j0) * roi_local.width + (i - roi_local.i0),
+               hit ? pack_depth_triangle(depth_m, std::uint32_t(tri)) : kEmptyPixel);
         }
     }
   }
