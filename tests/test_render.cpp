@@ -3,6 +3,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <map>
 #include <random>
@@ -229,6 +230,46 @@ TEST_CASE_TEMPLATE("colours come from the texture or interpolate the vertex colo
     REQUIRE(c.size() > 0);
     for (auto rgb : c.rgb) REQUIRE(rgb == pack_rgb({10, 20, 30}));
   }
+}
+
+TEST_CASE("texture lookups repeat the texture outside [0, 1] and blend the four nearest texels") {
+  // A 5 x 3 texture (sizes that are not powers of two) with distinct texels; the lookup is compared with
+  // the textbook bilinear formula, wrapping texel indices with a true modulo, at coordinates inside, on
+  // the borders, just outside and several periods away.
+  const int W = 5, H = 3;
+  std::vector<Rgb8> texels;
+  for (int k = 0; k < W * H; ++k)
+    texels.push_back({std::uint8_t(17 * k), std::uint8_t(255 - 11 * k), std::uint8_t((k * 97) % 256)});
+  MeshView m;
+  m.texture = texels.data(), m.texture_width = W, m.texture_height = H;
+  auto wrap = [](int i, int n) { return ((i % n) + n) % n; };
+  auto reference = [&](float u, float v) {
+    const double x = (double(u) - std::floor(double(u))) * W - 0.5;
+    const double y = (1.0 - (double(v) - std::floor(double(v)))) * H - 0.5;
+    const int xi = int(std::floor(x)), yi = int(std::floor(y));
+    const double wx = x - xi, wy = y - yi;
+    auto at = [&](int i, int j) { return texels[std::size_t(wrap(j, H) * W + wrap(i, W))]; };
+    auto mix = [&](auto channel) {
+      return (1 - wy) * ((1 - wx) * channel(at(xi, yi)) + wx * channel(at(xi + 1, yi))) +
+             wy * ((1 - wx) * channel(at(xi, yi + 1)) + wx * channel(at(xi + 1, yi + 1)));
+    };
+    return std::array<double, 3>{mix([](Rgb8 c) { return double(c.r); }),
+                                 mix([](Rgb8 c) { return double(c.g); }),
+                                 mix([](Rgb8 c) { return double(c.b); })};
+  };
+  int checked = 0;
+  for (float u :
+       {-2.31f, -1.f, -0.5f, -1e-7f, 0.f, 0.05f, 0.1f, 0.37f, 0.5f, 0.9f, 0.95f, 0.9999f, 1.f, 1.63f, 7.02f})
+    for (float v : {-3.4f, -1e-7f, 0.f, 0.1f, 0.2f, 0.5f, 0.83f, 0.99f, 1.f, 2.5f}) {
+      const Rgb8 got = sample_texture(m, u, v);
+      const std::array<double, 3> want = reference(u, v);
+      // Float weights against double ones, then rounding to 8 bits: within 1.
+      CHECK(std::abs(double(got.r) - want[0]) <= 1.01);
+      CHECK(std::abs(double(got.g) - want[1]) <= 1.01);
+      CHECK(std::abs(double(got.b) - want[2]) <= 1.01);
+      ++checked;
+    }
+  CHECK(checked == 150);
 }
 
 TEST_CASE_TEMPLATE("observed depth and labels occlude rendered pixels", B, PERCH2_CPU_RUNNABLE_BACKENDS) {

@@ -1,5 +1,6 @@
 // Triangle clusters (per-cluster back-face culling): they partition the triangles, bound them, and culling
-// them never changes what is rendered.
+// them never changes what is rendered. The grid filter (grid_candidates) drops only triangles that cover
+// no sample.
 #include <cmath>
 #include <random>
 #include <vector>
@@ -75,7 +76,80 @@ void check_culling_changes_nothing(Mesh mesh, int num_poses, float z_min, float 
   CHECK(culled > total / 4);  // a closed model shows about half its triangles back-facing
 }
 
+/// grid_candidates over random poses (some crossing the near plane), strides and ROIs: it returns exactly
+/// the triangles span_may_cover accepts (the SSE2 path equals the scalar one), and every triangle it drops
+/// has all corners in front of the near plane and no ROI sample inside its projected bounding box
+/// (computed in double precision, independently of the spans).
+void check_grid_candidates(Mesh mesh, int num_poses, float z_min, float z_max, unsigned seed) {
+  const MeshArrays a(std::move(mesh));
+  const MeshView m = a.host_view();
+  const Intrinsics K = test::vga_camera();
+  constexpr float kNear = 0.01f;
+  std::mt19937 rng(seed);
+  std::size_t kept = 0, dropped = 0, behind = 0;
+  for (int k = 0; k < num_poses; ++k) {
+    const Rigid3f T = to_rigid(test::random_pose(rng, z_min, z_max));
+    for (int stride : {1, 3, 4, 8}) {
+      std::vector<PosedPoint> p_cam(std::size_t(m.num_vertices));
+      std::vector<GridSpan> spans(std::size_t(m.num_vertices));
+      pose_vertices(m, T, K, stride, kNear, 0, m.num_vertices, p_cam.data(), spans.data());
+      const GridRoi full{0, 0, K.grid_width(stride), K.grid_height(stride)};
+      const GridRoi model = model_roi(m, T, K, stride, kNear);
+      const GridRoi part{full.width / 3, full.height / 4, full.width / 3, full.height / 2};
+      for (const GridRoi& roi : {full, model, part}) {
+        std::vector<char> listed(std::size_t(m.num_triangles), 0);
+        int list[kCandidateBatch];
+        for (int first = 0; first < m.num_triangles; first += kCandidateBatch) {
+          const int last = std::min(m.num_triangles, first + kCandidateBatch);
+          const int n = grid_candidates(m.triangles, spans.data(), first, last, roi, list);
+          std::vector<int> expected;
+          for (int t = first; t < last; ++t) {
+            const std::int32_t* f = m.triangles + 3 * t;
+            if (span_may_cover(spans[f[0]], spans[f[1]], spans[f[2]], roi)) expected.push_back(t);
+          }
+          REQUIRE(std::vector<int>(list, list + n) == expected);
+          for (int i = 0; i < n; ++i) listed[std::size_t(list[i])] = 1;
+        }
+        for (int t = 0; t < m.num_triangles; ++t) {
+          const std::int32_t* f = m.triangles + 3 * t;
+          double u0 = 1e300, v0 = 1e300, u1 = -1e300, v1 = -1e300;
+          bool in_front = true;
+          for (int c = 0; c < 3; ++c) {
+            const PosedPoint p = p_cam[std::size_t(f[c])];
+            in_front = in_front && p.z >= kNear;
+            const double u = double(K.fx) * p.x / p.z + K.cx, v = double(K.fy) * p.y / p.z + K.cy;
+            u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+          }
+          behind += in_front ? 0 : 1;
+          if (listed[std::size_t(t)]) {
+            ++kept;
+            continue;
+          }
+          ++dropped;
+          REQUIRE(in_front);
+          constexpr double kTol = 1e-4;  // px: float rounding of the projection, far below the spans' 1e-3
+          const int i_lo = std::max(roi.i0, int(std::ceil((u0 + kTol) / stride)));
+          const int i_hi = std::min(roi.i0 + roi.width - 1, int(std::floor((u1 - kTol) / stride)));
+          const int j_lo = std::max(roi.j0, int(std::ceil((v0 + kTol) / stride)));
+          const int j_hi = std::min(roi.j0 + roi.height - 1, int(std::floor((v1 - kTol) / stride)));
+          CHECK((i_lo > i_hi || j_lo > j_hi));
+        }
+      }
+    }
+  }
+  MESSAGE("grid filter kept " << kept << ", dropped " << dropped << " triangles (" << behind
+                              << " with a corner behind the near plane)");
+  CHECK(dropped > kept);  // small triangles at stride >= 3 mostly miss every sample
+  CHECK(behind > 0);      // the near-plane path was exercised
+}
+
 }  // namespace
+
+TEST_CASE("the grid filter drops exactly the triangles whose bounds contain no sample") {
+  std::mt19937 rng(7);
+  check_grid_candidates(test::make_blob(rng, 0.05f, 30, 40), 40, 0.0f, 0.4f, 4);
+  check_grid_candidates(test::lumpy_sphere(0.06f, 71, 72), 20, 0.0f, 1.2f, 5);
+}
 
 TEST_CASE("triangle clusters partition the triangles and bound their corners and normals") {
   std::mt19937 rng(3);

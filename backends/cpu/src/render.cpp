@@ -16,22 +16,29 @@ struct LocalCloud {
   std::vector<RenderedSample> samples;
 };
 
-/// Scratch reused by one thread across hypotheses (no per-hypothesis frame allocation).
+/// Scratch reused by one thread across hypotheses (no per-hypothesis frame allocation). Grows only: the
+/// rendering overwrites what it reads.
 struct Scratch {
   std::vector<DepthTriangle> zbuf;
   std::vector<PosedPoint> verts_cam;
   std::vector<GridSpan> spans;
+  std::vector<RenderedSample> samples;  ///< room for an ROI's samples; the visible ones are copied out
 };
+
+template <class T>
+T* at_least(std::vector<T>& v, int n) {
+  if (v.size() < std::size_t(n)) v.resize(std::size_t(n));
+  return v.data();
+}
 
 void render_one(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label, const RenderParams& p,
                 Scratch& scratch, LocalCloud& out) {
   const GridRoi roi = model_roi(m, T_cam_obj, p.K, p.stride, p.near_m);
-  scratch.verts_cam.resize(std::size_t(m.num_vertices));
-  scratch.spans.resize(std::size_t(m.num_vertices));
-  scratch.zbuf.resize(std::size_t(roi.size()));
-  out.samples.resize(std::size_t(roi.size()));
-  const HypothesisScratch s{scratch.verts_cam.data(), scratch.spans.data(), scratch.zbuf.data()};
-  out.samples.resize(std::size_t(render_hypothesis(m, T_cam_obj, label, roi, p, s, out.samples.data())));
+  const HypothesisScratch s{at_least(scratch.verts_cam, m.num_vertices),
+                            at_least(scratch.spans, m.num_vertices), at_least(scratch.zbuf, roi.size())};
+  RenderedSample* samples = at_least(scratch.samples, roi.size());
+  const int n = render_hypothesis(m, T_cam_obj, label, roi, p, s, samples);
+  out.samples.assign(samples, samples + n);
 }
 
 }  // namespace

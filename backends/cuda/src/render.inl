@@ -245,10 +245,15 @@ void copy_to(T* device, const std::vector<T>& host) {
 
 /// Renders the batch in whole-hypothesis chunks (CPU systems): per chunk two parallel passes, RenderWhole
 /// and ScatterWhole, and plain copies. Appends the clouds to `batch` and records the launches in `shape`.
-inline void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const RenderParams& params,
-                                const std::vector<std::int64_t>& hyp_vertices,
-                                const std::vector<std::int64_t>& roi_samples, std::size_t budget,
-                                DeviceArena& arena, LaunchShape& shape, CloudBatch& batch) {
+/// The scatter writes the batch's host arrays directly (on CPU systems host memory is device memory): no
+/// serial copy of the chunk's output.
+template <class System>
+void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const RenderParams& params,
+                         const std::vector<std::int64_t>& hyp_vertices,
+                         const std::vector<std::int64_t>& roi_samples, std::size_t budget, DeviceArena& arena,
+                         LaunchShape& shape, CloudBatch& batch) {
+  static_assert(!System::pinned_host_buffers,
+                "whole-hypothesis rendering needs host-accessible device memory");
   using Items = thrust::counting_iterator<std::int64_t>;
   const int workers = whole_hypothesis_workers();
   const std::vector<WholeRenderChunk> chunks =
@@ -268,9 +273,6 @@ inline void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi
     std::int64_t *pixels = arena.take<std::int64_t>(H), *visible = arena.take<std::int64_t>(H),
                  *slot = arena.take<std::int64_t>(H);
     RenderedSample* samples = arena.take<RenderedSample>(P);
-    float *x = arena.take<float>(P), *y = arena.take<float>(P), *z = arena.take<float>(P);
-    std::uint32_t* rgb = arena.take<std::uint32_t>(P);
-    std::int32_t *pixel = arena.take<std::int32_t>(P), *cloud = arena.take<std::int32_t>(P);
     copy_to(pixels, ch.pixels.elements);
     copy_to(next, std::vector<int>{0});
     thrust::for_each(thrust::device, Items(0), Items(workers),
@@ -281,15 +283,14 @@ inline void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi
     append_to_host(visible_host, visible, std::size_t(ch.count));
     for (int k = 0; k < ch.count; ++k) slot_host.push_back(slot_host.back() + visible_host[std::size_t(k)]);
     copy_to(slot, slot_host);
+    const std::size_t at = batch.size();
+    batch.resize(at + std::size_t(slot_host.back()));
     thrust::for_each(thrust::device, Items(0), Items(ch.count),
-                     ScatterWhole{ch.first, pixels, visible, slot, samples, x, y, z, rgb, pixel, cloud});
-    const std::int64_t at = std::int64_t(batch.size());
+                     ScatterWhole{ch.first, pixels, visible, slot, samples, batch.x.data() + at,
+                                  batch.y.data() + at, batch.z.data() + at, batch.rgb.data() + at,
+                                  batch.pixel.data() + at, batch.cloud.data() + at});
     for (int k = 1; k <= ch.count; ++k)
-      batch.offsets[std::size_t(ch.first + k)] = at + slot_host[std::size_t(k)];
-    const std::size_t m = std::size_t(slot_host.back());
-    append_to_host(batch.x, x, m), append_to_host(batch.y, y, m), append_to_host(batch.z, z, m);
-    append_to_host(batch.rgb, rgb, m), append_to_host(batch.pixel, pixel, m),
-        append_to_host(batch.cloud, cloud, m);
+      batch.offsets[std::size_t(ch.first + k)] = std::int64_t(at) + slot_host[std::size_t(k)];
     shape.launch("render_hypotheses", 1, workers);
     shape.launch("scatter", 1, ch.count);
     ++shape.chunks;
@@ -414,7 +415,8 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
   }
   if constexpr (System::render_whole_hypotheses) {
     const RenderParams params{camera, s.stride, s.near_m, s.cull_back_faces, occ};
-    render_whole_chunks(args, d_roi, params, hyp_vertices, roi_samples, budget, w.arena, w.shape, batch);
+    render_whole_chunks<System>(args, d_roi, params, hyp_vertices, roi_samples, budget, w.arena, w.shape,
+                                batch);
     w.shape.workspace_bytes = workspace_bytes(w);
     return batch;
   }

@@ -21,6 +21,11 @@
 #include "perch2/core/camera.hpp"
 #include "perch2/core/device.hpp"
 
+#if defined(__SSE2__) && !defined(__CUDA_ARCH__)
+#include <emmintrin.h>
+#define PERCH2_RASTER_SSE2 1
+#endif
+
 // Forces inlining of the per-triangle set-up into the triangle loop (GCC stopped inlining it once it grew,
 // costing ~10% of the raster time in a call that returns its result through memory).
 #if defined(__CUDACC__)
@@ -192,11 +197,12 @@ PERCH2_HD inline Vec3f edge_plane(Vec3f p, Vec3f q) {
 
 /// The grid samples a projected vertex bounds from each side: i_lo = ceil((u - eps) / s), i_hi =
 /// floor((u + eps) / s) (likewise j), clamped to [-1, grid size]. A triangle's samples lie within the min of
-/// its corners' lo and the max of their hi, so the per-triangle bound needs integer min/max only.
-/// 16-bit (grids are at most 32767 samples wide); i_lo = kBehindNear marks a vertex nearer than the near
-/// plane.
+/// its corners' lo and the max of their hi, so the per-triangle bound needs integer min/max only. The upper
+/// bounds are stored negated (-i_hi, -j_hi), so one packed 16-bit min over the corners bounds all four
+/// (grid_candidates). 16-bit (grids are at most 32767 samples wide); a vertex nearer than the near plane
+/// has the whole grid as its span, with i_lo = kBehindNear marking it.
 struct GridSpan {
-  std::int16_t i_lo, i_hi, j_lo, j_hi;
+  std::int16_t i_lo, j_lo, neg_i_hi, neg_j_hi;
 };
 constexpr std::int16_t kBehindNear = -32768;
 constexpr int kMaxGridSize = 32767;
@@ -261,12 +267,27 @@ PERCH2_HD inline void pose_vertices(const MeshView& m, const Rigid3f& T_cam_obj,
     // Behind the near plane the span is computed from garbage (clamped, never UB) and marked.
     const float inv_z = 1.f / z;
     const float u = K_local.fx * x * inv_z + K_local.cx, v = K_local.fy * y * inv_z + K_local.cy;
+    const bool in_front = z >= near_m;
     const int i_lo = ceil_int(clamp((u - kEps) * g.inv_stride, g.width));
-    span[k].i_lo = std::int16_t(select_int(z >= near_m, i_lo, kBehindNear));
-    span[k].i_hi = std::int16_t(floor_int(clamp((u + kEps) * g.inv_stride, g.width)));
-    span[k].j_lo = std::int16_t(ceil_int(clamp((v - kEps) * g.inv_stride, g.height)));
-    span[k].j_hi = std::int16_t(floor_int(clamp((v + kEps) * g.inv_stride, g.height)));
+    const int j_lo = ceil_int(clamp((v - kEps) * g.inv_stride, g.height));
+    const int i_hi = floor_int(clamp((u + kEps) * g.inv_stride, g.width));
+    const int j_hi = floor_int(clamp((v + kEps) * g.inv_stride, g.height));
+    span[k].i_lo = std::int16_t(select_int(in_front, i_lo, kBehindNear));
+    span[k].j_lo = std::int16_t(select_int(in_front, j_lo, kBehindNear));
+    span[k].neg_i_hi = std::int16_t(select_int(in_front, -i_hi, -kMaxGridSize));
+    span[k].neg_j_hi = std::int16_t(select_int(in_front, -j_hi, -kMaxGridSize));
   }
+}
+
+/// The samples of `roi` inside a triangle's grid span: the packed min of its corners' spans.
+PERCH2_HD inline GridRoi span_cover(const GridSpan& sa, const GridSpan& sb, const GridSpan& sc,
+                                    const GridRoi& roi) {
+  const int i0 = max_int(min3(sa.i_lo, sb.i_lo, sc.i_lo), roi.i0);
+  const int i1 = min_int(-min3(sa.neg_i_hi, sb.neg_i_hi, sc.neg_i_hi), roi.i0 + roi.width - 1);
+  const int j0 = max_int(min3(sa.j_lo, sb.j_lo, sc.j_lo), roi.j0);
+  const int j1 = min_int(-min3(sa.neg_j_hi, sb.neg_j_hi, sc.neg_j_hi), roi.j0 + roi.height - 1);
+  if (i1 < i0 || j1 < j0) return GridRoi{};
+  return {i0, j0, i1 - i0 + 1, j1 - j0 + 1};
 }
 
 /// Returns false if the triangle covers no sample of `roi` (degenerate, culled, behind the near plane).
@@ -275,15 +296,9 @@ PERCH2_HD_FORCE_INLINE bool setup_triangle(const PosedVertices& p_cam, const std
                                            const GridSpan& sa, const GridSpan& sb, const GridSpan& sc,
                                            const Intrinsics& K, int stride, float near_m, const GridRoi& roi,
                                            bool cull_back_faces, TriangleRaster& t) {
-  // Cheapest test first: at stride >= 2 most triangles of a model contain no grid sample at all.
-  const int i_lo = min3(sa.i_lo, sb.i_lo, sc.i_lo);
-  if (i_lo != kBehindNear) {
-    const int i0 = max_int(i_lo, roi.i0);
-    const int i1 = min_int(max3(sa.i_hi, sb.i_hi, sc.i_hi), roi.i0 + roi.width - 1);
-    const int j0 = max_int(min3(sa.j_lo, sb.j_lo, sc.j_lo), roi.j0);
-    const int j1 = min_int(max3(sa.j_hi, sb.j_hi, sc.j_hi), roi.j0 + roi.height - 1);
-    if (i1 < i0 || j1 < j0) return false;
-    t.cover = {i0, j0, i1 - i0 + 1, j1 - j0 + 1};
+  if (min3(sa.i_lo, sb.i_lo, sc.i_lo) != kBehindNear) {
+    t.cover = span_cover(sa, sb, sc, roi);
+    if (t.cover.size() == 0) return false;
   } else {
     PixelBounds bounds;
     const Vec3f v[3] = {p_cam[f[0]], p_cam[f[1]], p_cam[f[2]]};
@@ -311,13 +326,14 @@ PERCH2_HD_FORCE_INLINE bool setup_triangle(const PosedVertices& p_cam, const std
   return true;
 }
 
-/// Edge-function test of one ray: on a hit, the depth (z, metres) of the triangle along it.
+/// Edge-function test of one ray: on a hit, the depth (z, metres) of the triangle along it. Branch-free
+/// (the depth is computed for every ray, its value only used on a hit): whether a candidate triangle hits
+/// its sample is close to a coin toss at stride >= 2, which branches would mispredict.
 PERCH2_HD inline bool sample_triangle(const TriangleRaster& t, Vec3f ray, float near_m, float& depth_m) {
-  if (dot(t.n[0], ray) < 0.f || dot(t.n[1], ray) < 0.f || dot(t.n[2], ray) < 0.f) return false;
   const float along_normal = dot(t.normal, ray);
-  if (!(along_normal > 0.f)) return false;
   depth_m = t.offset / along_normal;
-  return depth_m >= near_m;
+  return (dot(t.n[0], ray) >= 0.f) & (dot(t.n[1], ray) >= 0.f) & (dot(t.n[2], ray) >= 0.f) &
+         (along_normal > 0.f) & (depth_m >= near_m);
 }
 
 PERCH2_HD inline std::uint8_t to_u8(float c) {
@@ -331,8 +347,11 @@ PERCH2_HD inline Rgb8 sample_texture(const MeshView& m, float u, float v) {
   const float xf = floorf(x), yf = floorf(y);
   const float wx = x - xf, wy = y - yf;
   const int W = m.texture_width, H = m.texture_height;
-  const int x0 = ((int(xf) % W) + W) % W, y0 = ((int(yf) % H) + H) % H;
-  const int x1 = (x0 + 1) % W, y1 = (y0 + 1) % H;
+  // x is in [-0.5, W - 0.5], so floor(x) in [-1, W - 1]: wrap without integer division (the clamp only
+  // keeps a non-finite coordinate inside the texture).
+  const int x0 = min_int(max_int(select_int(xf < 0.f, W - 1, int(xf)), 0), W - 1);
+  const int y0 = min_int(max_int(select_int(yf < 0.f, H - 1, int(yf)), 0), H - 1);
+  const int x1 = select_int(x0 + 1 == W, 0, x0 + 1), y1 = select_int(y0 + 1 == H, 0, y0 + 1);
   const Rgb8 c00 = m.texture[y0 * W + x0], c10 = m.texture[y0 * W + x1];
   const Rgb8 c01 = m.texture[y1 * W + x0], c11 = m.texture[y1 * W + x1];
   auto mix = [&](float p00, float p10, float p01, float p11) {
@@ -361,6 +380,57 @@ PERCH2_HD inline Rgb8 shade(const MeshView& m, int tri, Vec3f a, Vec3f b, Vec3f 
   return m.base_color;
 }
 
+/// Triangles per batch of grid_candidates (a model's clusters hold at most this many).
+constexpr int kCandidateBatch = 64;
+
+/// Whether a triangle with corner spans sa, sb, sc may cover a sample of `roi`: its span (clamped to the
+/// ROI) is not empty, or a corner is behind the near plane (whose span is the whole grid).
+PERCH2_HD inline bool span_may_cover(const GridSpan& sa, const GridSpan& sb, const GridSpan& sc,
+                                     const GridRoi& roi) {
+  const int i0 = max_int(min3(sa.i_lo, sb.i_lo, sc.i_lo), roi.i0);
+  const int j0 = max_int(min3(sa.j_lo, sb.j_lo, sc.j_lo), roi.j0);
+  const int neg_i1 = max_int(min3(sa.neg_i_hi, sb.neg_i_hi, sc.neg_i_hi), 1 - roi.i0 - roi.width);
+  const int neg_j1 = max_int(min3(sa.neg_j_hi, sb.neg_j_hi, sc.neg_j_hi), 1 - roi.j0 - roi.height);
+  return (i0 + neg_i1 <= 0) & (j0 + neg_j1 <= 0);
+}
+
+/// Writes the triangles of [first, last) (at most kCandidateBatch) that may cover a sample of `roi`
+/// (span_may_cover) to `list`, returns their count. At stride >= 2 most of a model's triangles cover no
+/// sample: this filter is branch-free (no misprediction per rejected triangle) and, with SSE2, tests two
+/// triangles' packed spans per instruction.
+PERCH2_HD_FORCE_INLINE int grid_candidates(const std::int32_t* __restrict__ triangles,
+                                           const GridSpan* __restrict__ span, int first, int last,
+                                           const GridRoi& roi, int* __restrict__ list) {
+  int n = 0, tri = first;
+#if defined(PERCH2_RASTER_SSE2)
+  const short i1 = short(roi.i0 + roi.width - 1), j1 = short(roi.j0 + roi.height - 1);
+  const __m128i clip = _mm_setr_epi16(short(roi.i0), short(roi.j0), short(-i1), short(-j1), short(roi.i0),
+                                      short(roi.j0), short(-i1), short(-j1));
+  const __m128i zero = _mm_setzero_si128();
+  auto corners_min = [span](const std::int32_t* f) {
+    const __m128i a = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(span + f[0]));
+    const __m128i b = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(span + f[1]));
+    const __m128i c = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(span + f[2]));
+    return _mm_min_epi16(_mm_min_epi16(a, b), c);
+  };
+  for (; tri + 2 <= last; tri += 2) {
+    const std::int32_t* f = triangles + 3 * tri;
+    // Per triangle (i_lo, j_lo, -i_hi, -j_hi) clamped to the ROI: it may cover a sample iff lo + (-hi) <= 0
+    // in i and in j.
+    const __m128i m = _mm_max_epi16(_mm_unpacklo_epi64(corners_min(f), corners_min(f + 3)), clip);
+    const __m128i hi = _mm_shufflehi_epi16(_mm_shufflelo_epi16(m, 0x4E), 0x4E);
+    const int empty = _mm_movemask_epi8(_mm_cmpgt_epi16(_mm_adds_epi16(m, hi), zero));
+    list[n] = tri, n += (empty & 0xF) == 0;
+    list[n] = tri + 1, n += (empty & 0xF00) == 0;
+  }
+#endif
+  for (; tri < last; ++tri) {
+    const std::int32_t* f = triangles + 3 * tri;
+    list[n] = tri, n += span_may_cover(span[f[0]], span[f[1]], span[f[2]], roi);
+  }
+  return n;
+}
+
 /// Rasterise triangles [begin, end) of a posed model into an ROI z-buffer: calls plot(roi_index,
 /// packed_word) for every covered sample. The backend's plot does the z-test (plain min in the reference, a
 /// 64-bit atomic min in the Thrust backend). Inputs are copied to locals so that plot's stores (an atomic is
@@ -372,19 +442,26 @@ PERCH2_HD void rasterize_triangle_run(const MeshView& m, PosedVertices v, int be
   const std::int32_t* const triangles = m.triangles;
   const Intrinsics K_local = K;
   const GridRoi roi_local = roi;
-  for (int tri = begin; tri < end; ++tri) {
-    const std::int32_t* f = triangles + 3 * tri;
-    TriangleRaster t;
-    if (!setup_triangle(v, f, v.span[f[0]], v.span[f[1]], v.span[f[2]], K_local, stride, near_m, roi_local,
-                        cull_back_faces, t))
-      continue;
-    for (int j = t.cover.j0; j < t.cover.j0 + t.cover.height; ++j)
-      for (int i = t.cover.i0; i < t.cover.i0 + t.cover.width; ++i) {
-        float depth_m;
-        if (sample_triangle(t, grid_ray(K_local, stride, i, j), near_m, depth_m))
+  int list[kCandidateBatch];
+  for (int first = begin; first < end; first += kCandidateBatch) {
+    const int n =
+        grid_candidates(triangles, v.span, first, min_int(end, first + kCandidateBatch), roi_local, list);
+    for (int k = 0; k < n; ++k) {
+      const int tri = list[k];
+      const std::int32_t* f = triangles + 3 * tri;
+      TriangleRaster t;
+      if (!setup_triangle(v, f, v.span[f[0]], v.span[f[1]], v.span[f[2]], K_local, stride, near_m, roi_local,
+                          cull_back_faces, t))
+        continue;
+      for (int j = t.cover.j0; j < t.cover.j0 + t.cover.height; ++j)
+        for (int i = t.cover.i0; i < t.cover.i0 + t.cover.width; ++i) {
+          float depth_m;
+          const bool hit = sample_triangle(t, grid_ray(K_local, stride, i, j), near_m, depth_m);
+          // A miss plots the empty word, which never wins the z-test (a select, not a branch).
           plot((j - roi_local.j0) * roi_local.width + (i - roi_local.i0),
-               pack_depth_triangle(depth_m, std::uint32_t(tri)));
-      }
+               hit ? pack_depth_triangle(depth_m, std::uint32_t(tri)) : kEmptyPixel);
+        }
+    }
   }
 }
 

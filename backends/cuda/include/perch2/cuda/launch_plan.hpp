@@ -96,14 +96,14 @@ struct WholeRenderChunk {
     return bytes(workers, max_vertices, max_roi, count, pixels.elements.back());
   }
   /// Carved in this order: worker scratch; counter; ROI offsets, visible counts, output slots; resolved
-  /// samples; compacted outputs (x, y, z, rgb, pixel, cloud).
+  /// samples (the compacted outputs are written to the host batch directly).
   static std::size_t bytes(int workers, std::int64_t max_vertices, std::int64_t max_roi, int count,
                            std::int64_t pixels) {
     const auto a = arena_aligned;
     const std::size_t V = std::size_t(max_vertices), R = std::size_t(max_roi), H = std::size_t(count) + 1,
                       P = std::size_t(pixels), W = std::size_t(workers);
     return a(W * V * sizeof(PosedPoint)) + a(W * V * sizeof(GridSpan)) + a(W * R * sizeof(DepthTriangle)) +
-           a(8) + 3 * a(H * 8) + a(P * sizeof(RenderedSample)) + 6 * a(P * 4);
+           a(8) + 3 * a(H * 8) + a(P * sizeof(RenderedSample));
   }
 };
 
