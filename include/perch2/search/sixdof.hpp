@@ -162,11 +162,14 @@ struct SixDofSettings {
   int score_stride = 4;
   /// First refinement: ICP warm-up then GICP. The cap covers the proposal error: a viewpoint/in-plane step
   /// of ~23-90 deg moves a 10 cm object's points by up to ~4 cm, and the depth step by up to 1 cm.
+  /// 8 warm-up + 12 GICP passes: on bench_sixdof's 20 scenes (ground-truth masks, run side by side) 22%
+  /// less CPU time than 15 + 20 at ADD-S AUC 98.6 vs 98.5, ADD(-S) AUC 92.6 vs 93.9, ADD-S < 2 cm 100% both
+  /// (the first pass only ranks; the second pass and the local search finish the pose).
   GicpSettings gicp = [] {
     GicpSettings s;
     s.max_correspondence_distance_m = 0.04f;
-    s.max_iterations = 20;
-    s.icp_warmup_iterations = 15;
+    s.max_iterations = 12;
+    s.icp_warmup_iterations = 8;
     return s;
   }();
   /// Second refinement (after a re-render at the refined pose) with this tighter cap, metres; 0 = none.
