@@ -9,12 +9,16 @@
 //   3. Evaluates every scene found for a configuration with perch2::eval (targets restricted to those
 //      scenes): ADD-S AUC, ADD(-S) AUC (0-10 cm) and ADD-S < 2 cm per object and overall; mean wall and
 //      process CPU seconds per scene with a per-stage breakdown; peak resident memory and the estimator's
-//      largest chunk; the load average while it ran (other jobs share the cores).
+//      largest chunk; the load average while it ran (other jobs share the cores). Per-instance errors go
+//      to SCRATCH/results/CONFIG/instances.txt.
 // --masks det: detections_synth.json as a detector would give them (boundaries grown/shrunk and wobbly,
 // jittered boxes, misses, look-alike confusions, spurious ones); a missed instance counts as a failure.
 // Usage: bench_sixdof [--scenes N (20)] [--seed S (2020)] [--only A-B (all)] [--masks gt|det|both (both)]
 //                     [--backend cpu|thrust_omp|both (cpu)] [--dir SCRATCH (/tmp/perch2_bench_sixdof)]
 //                     [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]
+//                     [--local N (local search candidates per instance)] [--sweep N (its sweep turns)]
+//                     [--dedupe 0|1 (de-duplication after the ICP warm-up)]
+//                     [--local-select 0|1 (the local search's winner by its own cost or the final one)]
 #include <omp.h>
 
 #include <cstdio>
@@ -51,6 +55,8 @@ struct Options {
   std::string dir = "/tmp/perch2_bench_sixdof";
   bool eval_only = false;
   std::string color_rule;  ///< "" = the default; any|nearest: SixDofSettings::cost.color_rule
+  int local_candidates = -1, local_sweep = -1, dedupe = -1,
+      local_select = -1;  ///< >= 0: SixDofSettings overrides
   int warmup = -1,
       iterations = -1;  ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
   std::string child_masks, child_backend;  ///< internal: run one configuration over [first, last] and exit
@@ -59,7 +65,8 @@ struct Options {
 constexpr const char* kUsage =
     "bench_sixdof [--scenes N] [--seed S] [--only A-B] [--masks gt|det|both] [--backend "
     "cpu|thrust_omp|both]\n"
-    "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]";
+    "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]\n"
+    "             [--local N] [--sweep N] [--dedupe 0|1] [--local-select 0|1]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -92,6 +99,11 @@ Options parse(int argc, char** argv) {
     } else if (a == "--color-rule") {
       if (v != "any" && v != "nearest") throw InvalidInput("--color-rule", "must be any or nearest");
       o.color_rule = v;
+    } else if (a == "--local" || a == "--sweep" || a == "--dedupe" || a == "--local-select") {
+      (a == "--local"    ? o.local_candidates
+       : a == "--sweep"  ? o.local_sweep
+       : a == "--dedupe" ? o.dedupe
+                         : o.local_select) = std::stoi(v);
     } else if (a == "--warmup" || a == "--iterations") {
       (a == "--warmup" ? o.warmup : o.iterations) = std::stoi(v);
     } else if (a == "--dir") {
@@ -136,6 +148,17 @@ double load_average() {
   return l;
 }
 
+/// The setting overrides a child needs on its command line.
+std::string child_overrides(const Options& o) {
+  std::string out;
+  const std::pair<const char*, int> all[] = {
+      {"--warmup", o.warmup},     {"--iterations", o.iterations}, {"--local", o.local_candidates},
+      {"--sweep", o.local_sweep}, {"--dedupe", o.dedupe},         {"--local-select", o.local_select}};
+  for (const auto& [flag, v] : all)
+    if (v >= 0) out += std::string(" ") + flag + " " + std::to_string(v);
+  return out;
+}
+
 std::string config_dir(const Options& o, const std::string& masks, cli::BackendKind b) {
   return o.dir + "/results/" + masks + "_" + cli::backend_name(b);
 }
@@ -154,6 +177,10 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
   if (!o.color_rule.empty())
     settings.cost.color_rule = o.color_rule == "any" ? ColorRule::AnyNeighbour : ColorRule::Nearest;
   if (o.warmup >= 0) settings.gicp.icp_warmup_iterations = o.warmup;
+  if (o.local_candidates >= 0) settings.local.candidates_per_instance = o.local_candidates;
+  if (o.local_sweep >= 0) settings.local.sweep_turns = o.local_sweep;
+  if (o.dedupe >= 0) settings.dedupe_after_warmup = o.dedupe != 0;
+  if (o.local_select >= 0) settings.local.select_by_local_cost = o.local_select != 0;
   if (o.iterations >= 0) settings.gicp.max_iterations = o.iterations;
   const SixDofEstimator<Backend> estimator(std::move(models), settings);
   std::vector<dataset::Detection> detections;
@@ -243,6 +270,11 @@ Row evaluate(const Options& o, const std::string& name, const std::string& dir) 
   eval::EvalSettings es;
   es.compute_vsd = false;
   row.report = eval::evaluate(dataset::BopDataset(root, options), estimates, es, dir);
+  // Per-instance errors (scene im obj gt visib ADD-S ADD(-S), mm) for looking at the failures.
+  std::ofstream per(dir + "/instances.txt");
+  for (const auto& i : row.report.instances)
+    per << i.scene_id << ' ' << i.im_id << ' ' << i.obj_id << ' ' << i.gt_index << ' ' << i.visib_fract << ' '
+        << 1000 * i.adds_m << ' ' << 1000 * i.add_s_m << '\n';
   return row;
 }
 
@@ -316,7 +348,8 @@ int main(int argc, char** argv) try {
         const std::string command =
             "'" + fs::canonical("/proc/self/exe").string() + "' --dir '" + o.dir + "' --only " +
             std::to_string(o.first) + "-" + std::to_string(std::min(o.last, o.scenes)) + " --child " + masks +
-            " " + cli::backend_name(b) + (o.color_rule.empty() ? "" : " --color-rule " + o.color_rule);
+            " " + cli::backend_name(b) + (o.color_rule.empty() ? "" : " --color-rule " + o.color_rule) +
+            child_overrides(o);
         if (std::system(command.c_str()) != 0) throw InvalidInput(name, "the run failed: " + command);
       }
       rows.push_back(evaluate(o, name, dir));

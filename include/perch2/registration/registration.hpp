@@ -250,19 +250,24 @@ inline void plane_basis(const Eigen::Vector3f& u, Eigen::Vector3f& e1, Eigen::Ve
   e2 = u.cross(e1);
 }
 
-/// GicpSettings::icp_warmup_iterations > 0: runs the warm-up ICP, moves each source by its correction, runs
-/// GICP on the moved sources and composes the two corrections (one host pass over the points between the
-/// two batched calls). `icp` and `gicp` are the backend's own batched calls (gicp with warm-up 0).
-template <class Icp, class Gicp>
-RegistrationResult gicp_after_icp_warmup(const CloudBatch& sources, const GicpSettings& s, Icp&& icp,
-                                         Gicp&& gicp) {
+/// The point-to-point ICP passes of GicpSettings::icp_warmup_iterations: same cap, epsilons, DoF, damping.
+inline IcpSettings icp_warmup_settings(const GicpSettings& s) {
   IcpSettings warm;
   warm.max_iterations = s.icp_warmup_iterations;
   warm.max_correspondence_distance_m = s.max_correspondence_distance_m;
   warm.translation_epsilon_m = s.translation_epsilon_m, warm.rotation_epsilon_rad = s.rotation_epsilon_rad;
   warm.min_inliers = s.min_inliers;
   warm.dof = s.dof, warm.up_cam = s.up_cam, warm.origin_cam = s.origin_cam, warm.lm = s.lm;
-  const RegistrationResult first = icp(sources, warm);
+  return warm;
+}
+
+/// GicpSettings::icp_warmup_iterations > 0: runs the warm-up ICP, moves each source by its correction, runs
+/// GICP on the moved sources and composes the two corrections (one host pass over the points between the
+/// two batched calls). `icp` and `gicp` are the backend's own batched calls (gicp with warm-up 0).
+template <class Icp, class Gicp>
+RegistrationResult gicp_after_icp_warmup(const CloudBatch& sources, const GicpSettings& s, Icp&& icp,
+                                         Gicp&& gicp) {
+  const RegistrationResult first = icp(sources, icp_warmup_settings(s));
 
   CloudBatch moved = sources;
   for (std::size_t c = 0; c < moved.num_clouds(); ++c) {
