@@ -133,6 +133,14 @@ float xy_error(const TabletopPose& p, float x, float y) {
   return std::hypot(p.T_world_obj.translation().x() - x, p.T_world_obj.translation().y() - y);
 }
 
+/// A grey box (not a model, an unknown object in the scene) of the given size standing on z = 0.
+Mesh grey_box_on_table(float x_m, float y_m, float z_m) {
+  Mesh box = test::make_box(x_m, y_m, z_m);
+  box.vertex_colors.assign(box.vertices.size(), Rgb8{120, 120, 120});
+  for (auto& v : box.vertices) v.z() += 0.5f * z_m;
+  return box;
+}
+
 const TabletopPose* pose_of(const TabletopResult& r, int model, int instance = 0) {
   for (const auto& p : r.poses)
     if (p.model == model && p.instance == instance) return &p;
@@ -580,10 +588,7 @@ TEST_CASE("a model whose axis is not z: rest pose from an example placement, fou
 TEST_CASE("selection charges a pose for the share of it that is hidden or out of view") {
   // Two red cans, one behind a tall grey box (not a model) that leaves about a third of it in view.
   std::vector<Mesh> meshes = can_meshes();
-  Mesh box = test::make_box(0.12f, 0.04f, 0.14f);
-  box.vertex_colors.assign(box.vertices.size(), Rgb8{120, 120, 120});
-  for (auto& v : box.vertices) v.z() += 0.07f;  // standing on z = 0
-  meshes.push_back(box);
+  meshes.push_back(grey_box_on_table(0.12f, 0.04f, 0.14f));
   const RgbdFrame frame =
       render_scene(meshes, {{0, 0.1f, 0.05f, 0.3f}, {0, -0.1f, 0.07f, 1.f}, {2, -0.1f, -0.02f, 0.f}});
   TabletopSettings s;
@@ -608,10 +613,7 @@ TEST_CASE("selection charges a pose for the share of it that is hidden or out of
 TEST_CASE("an unknown object (not among the models) neither attracts the cans nor hides them") {
   // A grey box (not a model) beside the cans and partly in front of the red one.
   std::vector<Mesh> meshes = can_meshes();
-  Mesh box = test::make_box(0.08f, 0.05f, 0.07f);
-  box.vertex_colors.assign(box.vertices.size(), Rgb8{120, 120, 120});
-  for (auto& v : box.vertices) v.z() += 0.035f;  // standing on z = 0
-  meshes.push_back(box);
+  meshes.push_back(grey_box_on_table(0.08f, 0.05f, 0.07f));
   const RgbdFrame frame =
       render_scene(meshes, {{0, 0.06f, 0.08f, 0.3f}, {1, -0.1f, 0.0f, 1.1f}, {2, 0.07f, -0.02f, 0.2f}});
   const TabletopResult r =
