@@ -5,13 +5,17 @@
 #include <omp.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "perch2/cpu/render.hpp"
 #include "perch2/io/mesh_io.hpp"
 #include "perch2/registration/device_math.hpp"
+#include "perch2/registration/neighbours.hpp"
 #include "render_fixtures.hpp"
 #include "test_support.hpp"
 
@@ -760,4 +764,165 @@ TEST_CASE("thrust registration on CPU systems: one parallel region per call") {
   CHECK(shape.passes[0].launches == 1);
   CHECK(shape.passes[0].items == omp_get_max_threads());
   CHECK(shape.device_allocations == 0);  // the workspace is warm
+}
+
+// ---- The registration's own neighbour searches (perch2/registration/neighbours.hpp) against brute force
+// ----
+
+namespace {
+
+/// A named test cloud for the source-stripe kNN.
+struct NamedCloud {
+  const char* name;
+  std::vector<Vec3f> points;
+};
+
+std::vector<NamedCloud> stripe_test_clouds() {
+  std::mt19937 rng(1234);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  std::vector<NamedCloud> out;
+  auto add = [&](const char* name, int n, auto make) {
+    NamedCloud c{name, {}};
+    for (int i = 0; i < n; ++i) c.points.push_back(make(i));
+    out.push_back(std::move(c));
+  };
+  // A rendered-like surface: a bumpy 10 cm patch 0.7 m away, in scanline order.
+  add("surface patch", 313, [&](int i) {
+    const float x = 0.005f * float(i % 18) - 0.045f, y = 0.005f * float(i / 18) - 0.045f;
+    return Vec3f{x, y, 0.7f + 0.01f * std::sin(40.f * x) * std::cos(30.f * y) + 1e-4f * u(rng)};
+  });
+  add("volume", 500, [&](int) { return Vec3f{0.1f * u(rng), 0.1f * u(rng), 0.6f + 0.1f * u(rng)}; });
+  add("one y (a single stripe)", 200, [&](int) { return Vec3f{u(rng), 0.25f, u(rng)}; });
+  add("one x (zero-width box)", 200, [&](int) { return Vec3f{0.5f, u(rng), u(rng)}; });
+  add("coincident points (ties)", 40, [&](int i) { return Vec3f{0.1f * float(i % 3), 0.f, 1.f}; });
+  add("fewer points than k", 5, [&](int) { return Vec3f{u(rng), u(rng), u(rng)}; });
+  add("non-finite points mixed in", 300, [&](int i) {
+    const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+    if (i % 17 == 3) return Vec3f{nan, 0.f, 1.f};
+    if (i % 23 == 5) return Vec3f{0.f, inf, 1.f};
+    return Vec3f{u(rng), u(rng), 0.5f * u(rng)};
+  });
+  add("far from the origin, on a grid (equal distances)", 400, [&](int i) {
+    return Vec3f{100.f + 0.01f * float(i % 20), -50.f + 0.01f * float(i / 20), 3.f};
+  });
+  add("long stripes (capped stripe count)", 4000, [&](int) { return Vec3f{u(rng), u(rng), 0.01f * u(rng)}; });
+  return out;
+}
+
+bool finite_point(Vec3f p) {
+  return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
+}
+
+}  // namespace
+
+TEST_CASE("source stripes: the k nearest neighbours of every point equal brute force, ties included") {
+  for (const NamedCloud& cloud : stripe_test_clouds()) {
+    for (int k : {3, 10, reg::kMaxSourceNeighbours}) {
+      CAPTURE(cloud.name);
+      CAPTURE(k);
+      const std::int64_t n = std::int64_t(cloud.points.size());
+      const std::int32_t first = 7;  // indices of the points in a larger batch
+      std::vector<float> key_x(std::size_t(n) + 1, -1.f);
+      std::vector<std::int32_t> key_stripe(std::size_t(n) + 1, -1), order(std::size_t(n) + 1, -1);
+      const reg::SourceStripes st = reg::source_stripes_sort(cloud.points.data(), n, k, first, key_x.data(),
+                                                             key_stripe.data(), order.data());
+      CHECK(key_x[std::size_t(n)] == -1.f);  // writes nothing past the cloud
+      CHECK(order[std::size_t(n)] == -1);
+      // The order is a permutation; stripes partition the finite points, each sorted by x.
+      std::vector<std::int32_t> seen(order.begin(), order.begin() + n);
+      std::sort(seen.begin(), seen.end());
+      for (std::int64_t i = 0; i < n; ++i) REQUIRE(seen[std::size_t(i)] == first + i);
+      REQUIRE(st.count >= 1);
+      REQUIRE(st.count <= reg::kMaxSourceStripes);
+      std::vector<Vec3f> sorted(static_cast<std::size_t>(n));
+      for (std::int64_t s = 0; s < n; ++s)
+        sorted[std::size_t(s)] = cloud.points[std::size_t(order[s] - first)];
+      for (int t = 0; t < st.count; ++t)
+        for (std::int32_t s = st.start[t]; s < st.start[t + 1]; ++s) {
+          CHECK(key_stripe[std::size_t(s)] == t);
+          CHECK(finite_point(sorted[std::size_t(s)]));
+          CHECK(key_x[std::size_t(s)] == sorted[std::size_t(s)].x);
+          if (s > st.start[t]) CHECK(key_x[std::size_t(s) - 1] <= key_x[std::size_t(s)]);
+        }
+      for (std::int64_t s = st.start[st.count]; s < n; ++s) CHECK(!finite_point(sorted[std::size_t(s)]));
+      // Every query against a brute-force scan of the finite points by (squared distance, sorted position).
+      int mismatches = 0;
+      for (std::int64_t s0 = 0; s0 < n; ++s0) {
+        std::int32_t got[reg::kMaxSourceNeighbours];
+        const int found = reg::source_knn(sorted.data(), key_x.data(), key_stripe.data(), st, s0, k, got);
+        const Vec3f q = sorted[std::size_t(s0)];
+        std::vector<std::pair<float, std::int32_t>> ref;
+        if (finite_point(q))
+          for (std::int64_t s = 0; s < n; ++s)
+            if (finite_point(sorted[std::size_t(s)]))
+              ref.emplace_back(knn_sq_distance(sorted[std::size_t(s)], q), std::int32_t(s));
+        std::sort(ref.begin(), ref.end());
+        ref.resize(std::min<std::size_t>(ref.size(), std::size_t(k)));
+        bool same = found == int(ref.size());
+        for (int j = 0; same && j < found; ++j) same = got[j] == ref[std::size_t(j)].second;
+        mismatches += same ? 0 : 1;
+      }
+      CHECK(mismatches == 0);
+    }
+  }
+}
+
+TEST_CASE("target neighbour lists give grid_knn's nearest point bit for bit whenever they decide") {
+  // Two segments: a noisy bumpy surface (5,000 points, duplicates for ties) and one smaller than a list.
+  std::mt19937 rng(99);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  CloudBatch targets;
+  std::vector<Vec3f> pts;
+  for (int i = 0; i < 5000; ++i) {
+    const float x = 0.08f * u(rng), y = 0.08f * u(rng);
+    pts.push_back({x, y, 0.7f + 0.01f * std::sin(50.f * x) + 2e-4f * u(rng)});
+    if (i % 50 == 0) pts.push_back(pts.back());  // an exact duplicate: equal distances, the index decides
+  }
+  const std::int64_t first_end = std::int64_t(pts.size());
+  for (int i = 0; i < 5; ++i) pts.push_back({0.3f + 0.01f * float(i), 0.f, 0.7f});
+  targets.resize(pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i)
+    targets.x[i] = pts[i].x, targets.y[i] = pts[i].y, targets.z[i] = pts[i].z;
+  targets.offsets = {0, first_end, std::int64_t(pts.size())};
+  const HostGrid grid(targets);
+  const GridView view = grid.view();
+  std::vector<reg::ListEntry> lists(pts.size() * reg::kTargetListSize);
+  std::vector<float> reach(pts.size());
+  for (std::size_t j = 0; j < pts.size(); ++j) {
+    const int seg = std::int64_t(j) < first_end ? 0 : 1;
+    reach[j] =
+        reg::target_list_build(view, seg, pts.data(), std::int32_t(j), &lists[j * reg::kTargetListSize]);
+  }
+  CHECK(reach[std::size_t(first_end)] == std::numeric_limits<float>::infinity());  // holds its whole segment
+  // Queries: a target point j0 (the previous correspondence) and a point near it, at offsets from sub-mm
+  // (converging) to cm (early iterations); radius = r0 (1 + 1e-5) as the registration passes it, sometimes
+  // capped below r0.
+  int decided = 0, decided_near = 0, near_queries = 0, mismatches = 0;
+  for (int trial = 0; trial < 40000; ++trial) {
+    const std::int32_t j0 = std::int32_t(rng() % pts.size());
+    const int seg = j0 < first_end ? 0 : 1;
+    const float scale = std::array<float, 4>{2e-4f, 1e-3f, 3e-3f, 2e-2f}[std::size_t(trial % 4)];
+    const Vec3f q{pts[std::size_t(j0)].x + scale * u(rng), pts[std::size_t(j0)].y + scale * u(rng),
+                  pts[std::size_t(j0)].z + scale * u(rng)};
+    const float r0 = std::sqrt(knn_sq_distance(pts[std::size_t(j0)], q));
+    const float radius = trial % 7 == 0 ? 0.5f * r0 : std::min(0.05f, r0 * (1.f + 1e-5f));
+    std::int32_t j = -2, jr = -2;
+    float d2 = -1.f, d2r = -1.f;
+    const int found = reg::target_list_nearest(&lists[std::size_t(j0) * reg::kTargetListSize],
+                                               reach[std::size_t(j0)], pts.data(), r0, q, radius, j, d2);
+    if (scale <= 1e-3f && trial % 7 != 0) ++near_queries;
+    if (found < 0) continue;
+    ++decided;
+    if (scale <= 1e-3f && trial % 7 != 0) ++decided_near;
+    const int found_ref = grid_knn(view, seg, q, 1, radius, &jr, &d2r);
+    mismatches += (found == found_ref && j == jr && (found == 0 || d2 == d2r)) ? 0 : 1;
+  }
+  CHECK(mismatches == 0);
+  CHECK(decided_near > 0.95 * near_queries);  // near convergence the list decides almost always
+  CHECK(decided < 40000);                     // and far away it leaves the search to the grid
+  // A non-finite query or r0 leaves it to the grid.
+  std::int32_t j = 0;
+  float d2 = 0.f;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  CHECK(reg::target_list_nearest(&lists[0], reach[0], pts.data(), nan, {nan, 0.f, 0.7f}, nan, j, d2) == -1);
 }

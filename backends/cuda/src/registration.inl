@@ -7,7 +7,9 @@
 // CPU systems (System::registration_whole_clouds) run the same functors per source cloud instead: one
 // parallel region per call whose work items pull whole clouds (all their iterations) from a counter.
 // The targets live in the kNN stage's KnnIndex<System>: correspondences and target normals are grid_knn ball
-// searches started from its per-cell representatives (exact, within the correspondence distance cap).
+// searches started from its per-cell representatives (exact, within the correspondence distance cap); from
+// the second pass on, a correspondence is first looked up in the previous one's neighbour list and source
+// normals use per-cloud stripes (both exact: perch2/registration/neighbours.hpp).
 #include <thrust/copy.h>
 #include <thrust/device_vector.h>
 #include <thrust/execution_policy.h>
@@ -30,6 +32,7 @@
 #include "perch2/knn/grid.hpp"
 #include "perch2/knn/scan.hpp"
 #include "perch2/registration/device_math.hpp"
+#include "perch2/registration/neighbours.hpp"
 #include "thrust_util.hpp"
 
 namespace perch2::thrust_backend {
@@ -134,38 +137,38 @@ PERCH2_HD inline void heap_sort_pairs(K* key, std::int32_t* idx, std::int64_t n)
   heap_sort(n, less, swap);
 }
 
-/// Sort keys of source points: x coordinate (the kNN sweep) or the pixel index (pixel neighbourhoods).
+static_assert(reg::kMaxSourceNeighbours >= kMaxCovarianceNeighbors);
+
+/// Sort keys of source points for pixel neighbourhoods: the pixel index, and the identity order.
 struct SortKeys {
-  const Vec3f* points;
-  const std::int32_t* pixel;  // null: key = x
-  float* key_x;
+  const std::int32_t* pixel;
   std::int32_t* key_pixel;
   std::int32_t* order;
   PERCH2_HD void operator()(std::int64_t i) const {
-    if (pixel)
-      key_pixel[i] = pixel[i];
-    else
-      key_x[i] = points[i].x;
+    key_pixel[i] = pixel[i];
     order[i] = std::int32_t(i);
   }
 };
 
-/// Sorts each source cloud's (key, point) pairs in place: one cloud per thread (clouds are small).
+/// Sorts each source cloud's points, one cloud per thread (clouds are small): by pixel, or (kNN mode,
+/// `stripes` set) into x-sorted stripes (perch2/registration/neighbours.hpp).
 struct SortClouds {
+  const Vec3f* points;
   const std::int64_t* offsets;
+  int k;
   float* key_x;
-  std::int32_t* key_pixel;
+  std::int32_t* key_pixel;  // the pixel, or the stripe
   std::int32_t* order;
+  reg::SourceStripes* stripes;  // null: pixel mode
   PERCH2_HD void operator()(int c) const {
     const std::int64_t b = offsets[c], n = offsets[c + 1] - b;
-    if (key_pixel)
-      heap_sort_pairs(key_pixel + b, order + b, n);
-    else
-      heap_sort_pairs(key_x + b, order + b, n);
+    if (!stripes) return heap_sort_pairs(key_pixel + b, order + b, n);
+    stripes[c] =
+        reg::source_stripes_sort(points + b, n, k, std::int32_t(b), key_x + b, key_pixel + b, order + b);
   }
 };
 
-/// Scatters the x-sorted points and each point's sorted position.
+/// Scatters the sorted points and each point's sorted position.
 struct ScatterSorted {
   const Vec3f* points;
   const std::int32_t* order;
@@ -177,39 +180,25 @@ struct ScatterSorted {
   }
 };
 
-/// Source normals from the k nearest neighbours within the same source cloud, found exactly by a sweep over
-/// the cloud's points sorted by x: outwards from the query until the x gap alone exceeds the k-th distance.
+/// Source normals from the k nearest neighbours within the same source cloud (reg::source_knn).
 struct SourceKnnNormals {
-  const Vec3f* sorted;  // points sorted by (cloud, x)
+  const Vec3f* sorted;  // points sorted by (cloud, stripe, x)
+  const float* sorted_x;
+  const std::int32_t* sorted_stripe;
   const std::int32_t* position;
   const std::int64_t* offsets;
+  const reg::SourceStripes* stripes;
   int num_clouds, k;
   Vec3f* normals;
   PERCH2_HD void operator()(std::int64_t i) const { normal(i, find_segment(offsets, num_clouds, i)); }
 
   /// Point i of cloud c.
   PERCH2_HD void normal(std::int64_t i, int c) const {
-    const std::int64_t s0 = position[i], b = offsets[c], e = offsets[c + 1];
-    const Vec3f q = sorted[s0];
+    const std::int64_t b = offsets[c];
     std::int32_t idx[kMaxCovarianceNeighbors];
-    float d2[kMaxCovarianceNeighbors];
-    knn_clear(k, idx, d2);
-    float bound = INFINITY;
-    for (std::int64_t s = s0; s < e; ++s) {
-      const float dx = sorted[s].x - q.x;
-      if (dx * dx > bound) break;
-      const float d = knn_sq_distance(sorted[s], q);
-      if (d <= bound && knn_push(k, idx, d2, INFINITY, d, std::int32_t(s))) bound = d2[k - 1];
-    }
-    for (std::int64_t s = s0 - 1; s >= b; --s) {
-      const float dx = sorted[s].x - q.x;
-      if (dx * dx > bound) break;
-      const float d = knn_sq_distance(sorted[s], q);
-      if (d <= bound && knn_push(k, idx, d2, INFINITY, d, std::int32_t(s))) bound = d2[k - 1];
-    }
-    int n = 0;
-    while (n < k && idx[n] >= 0) ++n;
-    normals[i] = neighbourhood_normal(sorted, idx, n, q);
+    const int n =
+        reg::source_knn(sorted + b, sorted_x + b, sorted_stripe + b, stripes[c], position[i] - b, k, idx);
+    normals[i] = neighbourhood_normal(sorted + b, idx, n, sorted[position[i]]);
   }
 };
 
@@ -345,6 +334,39 @@ PERCH2_HD inline void accumulate_normal_equations(Accum& a, const reg::Sym3& W, 
   a.cost_new += dot(d, Wd);
 }
 
+/// The target neighbour lists of one Registration (reg::target_list_nearest), built on first use: a state
+/// flag per target point claimed atomically; a thread finding a list being built searches the grid.
+struct TargetLists {
+  GridView grid;
+  const Vec3f* points;
+  std::int32_t* state;      // per target point: 0 none, 1 being built, 2 built
+  float* reach;             // per target point: the list holds every point nearer than this (metres)
+  reg::ListEntry* entries;  // reg::kTargetListSize per target point
+
+  /// True if the list of target point j (segment seg) is built, building it now if nobody has started to.
+  PERCH2_HD bool ready(int seg, std::int32_t j) const {
+    cuda::atomic_ref<std::int32_t, cuda::thread_scope_device> flag(state[j]);
+    const std::int32_t s = flag.load(cuda::memory_order_acquire);
+    if (s != 0) return s == 2;
+    std::int32_t expected = 0;
+    if (!flag.compare_exchange_strong(expected, 1, cuda::memory_order_acq_rel)) return expected == 2;
+    reach[j] = reg::target_list_build(grid, seg, points, j, entries + std::int64_t(j) * reg::kTargetListSize);
+    flag.store(2, cuda::memory_order_release);
+    return true;
+  }
+
+  /// grid_knn(grid, seg, q, 1, radius, &j, &d2) given target point j0 at distance r0 >= radius / (1 + 1e-5).
+  PERCH2_HD int nearest(int seg, std::int32_t j0, float r0, Vec3f q, float radius, std::int32_t& j,
+                        float& d2) const {
+    if (r0 < INFINITY && ready(seg, j0)) {
+      const int found = reg::target_list_nearest(entries + std::int64_t(j0) * reg::kTargetListSize, reach[j0],
+                                                 points, r0, q, radius, j, d2);
+      if (found >= 0) return found;
+    }
+    return grid_knn(grid, seg, q, 1, radius, &j, &d2);
+  }
+};
+
 /// The per-iteration pass over one block of one hypothesis' points, at its candidate pose.
 struct LinearizeBlock {
   Params P;
@@ -361,6 +383,7 @@ struct LinearizeBlock {
   std::int32_t* corr;  // 2 x num_points
   std::int64_t num_points;
   Accum* blocks;
+  TargetLists lists;
 
   PERCH2_HD void operator()(std::int64_t b) const {
     const int h = block_hyp[b];
@@ -382,18 +405,20 @@ struct LinearizeBlock {
       const Vec3f m = P.gicp ? T.R * normals[i] : Vec3f{0.f, 0.f, 0.f};
       // The accepted pose's correspondence, moved by the step: its cost term, and its distance bounds the
       // nearest-neighbour search (the true nearest is at most that far; the 1e-5 margin covers rounding).
-      float radius = P.max_dist;
-      if (st.have_acc && corr_old[i] >= 0) {
-        const std::int32_t jo = corr_old[i];
+      float radius = P.max_dist, r0 = INFINITY;
+      const std::int32_t jo = st.have_acc ? corr_old[i] : -1;
+      if (jo >= 0) {
         const Vec3f d = target_points[jo] - p;
         // Weights frozen at the accepted linearisation: the cost the step minimised.
         const Vec3f m_acc = P.gicp ? st.T_acc.R * normals[i] : Vec3f{0.f, 0.f, 0.f};
         a.cost_old += Weight(P, P.gicp ? target_normals[jo] : Vec3f{0, 0, 0}, m_acc).quadratic(d);
-        radius = min_f(radius, sqrtf(knn_sq_distance(target_points[jo], p)) * (1.f + 1e-5f));
+        r0 = sqrtf(knn_sq_distance(target_points[jo], p));
+        radius = min_f(radius, r0 * (1.f + 1e-5f));
       }
       std::int32_t j;
       float d2;
-      const int found = grid_knn(grid, seg, p, 1, radius, &j, &d2);
+      const int found =
+          jo >= 0 ? lists.nearest(seg, jo, r0, p, radius, j, d2) : grid_knn(grid, seg, p, 1, radius, &j, &d2);
       corr_new[i] = found ? j : -1;
       if (found) {
         const Vec3f d = target_points[j] - p;
@@ -528,7 +553,8 @@ struct RegisterClouds {
     const std::int64_t b = offsets[h], e = offsets[h + 1];
     for (std::int64_t i = b; i < e; ++i) corr[i] = corr[num_points + i] = -1;
     if (normals != 0) {
-      for (std::int64_t i = b; i < e; ++i) sort_keys(i);
+      if (normals == 2)
+        for (std::int64_t i = b; i < e; ++i) sort_keys(i);
       sort_clouds(h);
       if (normals == 1) {
         for (std::int64_t i = b; i < e; ++i) scatter_sorted(i);
@@ -571,6 +597,11 @@ struct Registration<System>::Impl {
   KnnIndex<System> index;
   mutable std::mutex mutex;
   mutable std::map<int, thrust::device_vector<Vec3f>> target_normals;  // by k_neighbors
+  /// Neighbour lists of the target points (reg_detail::TargetLists), allocated by the first call and filled
+  /// on demand by the calls.
+  mutable thrust::device_vector<std::int32_t> list_state;
+  mutable thrust::device_vector<float> list_reach;
+  mutable thrust::device_vector<reg::ListEntry> list_entries;
 
   /// Per-call arrays, reused across calls (they grow only; run() holds run_mutex).
   struct Workspace {
@@ -580,6 +611,7 @@ struct Registration<System>::Impl {
     thrust::device_vector<std::int32_t> any_active{1};
     thrust::device_vector<float> key_x;
     thrust::device_vector<reg_detail::HypState> state;
+    thrust::device_vector<reg::SourceStripes> stripes;
     thrust::device_vector<reg_detail::Accum> blocks;
     TempAllocator temp;
   };
@@ -644,32 +676,43 @@ struct Registration<System>::Impl {
     reg_detail::Accum* blocks = reuse(w.blocks, std::size_t(num_blocks), allocs);
     const auto pts = thrust::counting_iterator<std::int64_t>(0);
     const auto hyps = thrust::counting_iterator<int>(0);
-    // Source normals (GICP): each cloud's points sorted (by x for the kNN sweep, by pixel for pixel
-    // neighbourhoods) with one device-callable heap sort per cloud.
+    // Source normals (GICP): each cloud's points sorted (into x-sorted stripes for the kNN search, by pixel
+    // for pixel neighbourhoods) with one device-callable heap sort per cloud.
     const int normal_mode = !gs                                                                 ? 0
                             : gs->source_covariance == SourceCovariance::FromPixelNeighbourhood ? 2
                                                                                                 : 1;
     const Vec3f* tn = gs ? ptr(normals_for(gs->k_neighbors)) : nullptr;
     Vec3f* normals = gs ? reuse(w.normals, un, allocs) : nullptr;
     float* kx = normal_mode == 1 ? reuse(w.key_x, un, allocs) : nullptr;
-    std::int32_t* kp = normal_mode == 2 ? reuse(w.key_pixel, un, allocs) : nullptr;
+    std::int32_t* kp = gs ? reuse(w.key_pixel, un, allocs) : nullptr;  // pixel or stripe keys
     std::int32_t* order = gs ? reuse(w.order, un, allocs) : nullptr;
     const std::int32_t* pixel = normal_mode == 2 ? upload(w.pixel, src.pixel, allocs) : nullptr;
     std::int32_t* position = normal_mode == 1 ? reuse(w.position, un, allocs) : nullptr;
     Vec3f* sorted = normal_mode == 1 ? reuse(w.sorted, un, allocs) : nullptr;
+    reg::SourceStripes* stripes = normal_mode == 1 ? reuse(w.stripes, unum, allocs) : nullptr;
     const float md = gs ? gs->pixel_neighbour_max_distance_m : 0.f;
-    const reg_detail::SortKeys sort_keys{points, pixel, kx, kp, order};
-    const reg_detail::SortClouds sort_clouds{offsets, kx, kp, order};
+    const int k = gs ? gs->k_neighbors : 0;
+    const reg_detail::SortKeys sort_keys{pixel, kp, order};
+    const reg_detail::SortClouds sort_clouds{points, offsets, k, kx, kp, order, stripes};
     const reg_detail::ScatterSorted scatter_sorted{points, order, sorted, position};
-    const reg_detail::SourceKnnNormals knn_normals{sorted, position, offsets, num, gs ? gs->k_neighbors : 0,
-                                                   normals};
+    const reg_detail::SourceKnnNormals knn_normals{sorted,  kx,  kp, position, offsets,
+                                                   stripes, num, k,  normals};
     const reg_detail::SourcePixelNormals pixel_normals{
         points,  offsets, pixel, kp, order, num, gs ? gs->image_width_px : 0, gs ? gs->pixel_radius_px : 0,
         md * md, normals};
     const reg_detail::InitState init{points, offsets, P.lambda_initial, centroid, state};
-    const reg_detail::LinearizeBlock pass{P,       grid(),   target_points(), tn,          points, normals,
-                                          segment, centroid, block_hyp,       block_begin, state,  corr,
-                                          n,       blocks};
+    if (list_state.empty()) {
+      const std::size_t nt = index.num_points();
+      thrust::device_vector<std::int32_t>(nt, 0).swap(list_state);
+      list_reach.resize(nt);
+      list_entries.resize(nt * reg::kTargetListSize);
+      allocs += 3;
+    }
+    const reg_detail::TargetLists lists{grid(), target_points(), ptr(list_state), ptr(list_reach),
+                                        ptr(list_entries)};
+    const reg_detail::LinearizeBlock pass{
+        P,         grid(),      target_points(), tn,   points, normals, segment, centroid,
+        block_hyp, block_begin, state,           corr, n,      blocks,  lists};
     const reg_detail::StepHypothesis step{P, centroid, hyp_blocks, blocks, state};
 
     if constexpr (System::registration_whole_clouds) {
@@ -683,9 +726,11 @@ struct Registration<System>::Impl {
     } else {
       thrust::fill_n(thrust::device, corr, std::int64_t(2 * un), std::int32_t(-1));
       if (gs) {
-        thrust::for_each(thrust::device, pts, pts + n, sort_keys);
+        if (normal_mode == 2) {
+          thrust::for_each(thrust::device, pts, pts + n, sort_keys);
+          shape.launch("source_sort_keys", 1, n);
+        }
         thrust::for_each(thrust::device, hyps, hyps + num, sort_clouds);
-        shape.launch("source_sort_keys", 1, n);
         shape.launch("source_sort_clouds", 1, num);
         if (normal_mode == 1) {
           thrust::for_each(thrust::device, pts, pts + n, scatter_sorted);

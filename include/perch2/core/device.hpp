@@ -40,6 +40,28 @@ PERCH2_HD inline int ceil_int(float x) {
   return i + (x > float(i));
 }
 
+/// The bits of a float and back. Non-negative floats order like their bit patterns (NaN above +inf).
+PERCH2_HD inline std::uint32_t float_bits(float f) {
+  union {
+    float f;
+    std::uint32_t u;
+  } x{f};
+  return x.u;
+}
+PERCH2_HD inline float bits_float(std::uint32_t u) {
+  union {
+    std::uint32_t u;
+    float f;
+  } x{u};
+  return x.f;
+}
+
+/// (d2, index) as one integer that orders like the pair for d2 >= 0: a minimum picks the nearest point and
+/// breaks exact ties by the smaller index (the kNN order, perch2/knn/scan.hpp).
+PERCH2_HD inline std::uint64_t pair_key(float d2, std::int32_t index) {
+  return (std::uint64_t(float_bits(d2)) << 32) | std::uint32_t(index);
+}
+
 struct Vec2f {
   float x, y;
 };

@@ -35,7 +35,7 @@
 #include "perch2/core/error.hpp"
 #include "perch2/core/mesh.hpp"
 #include "perch2/core/pose.hpp"
-#include "perch2/render/raster.hpp"  // float_bits
+#include "perch2/render/raster.hpp"
 
 namespace perch2 {
 
@@ -190,12 +190,6 @@ struct FailedColours {
     return keys + std::int64_t(observed) * kSlots + ((key * 2654435761u) >> 29);
   }
 };
-
-/// (d2, index) as one integer that orders like the pair (non-negative floats order like their bits), so a
-/// minimum picks the nearest point and breaks exact ties by the smaller index, as OutlierVote does.
-PERCH2_HD inline std::uint64_t pair_key(float d2, std::int32_t index) {
-  return (std::uint64_t(float_bits(d2)) << 32) | std::uint32_t(index);
-}
 
 /// The colour half of OutlierVote for one observed point: lab is its colour, rendered the searched colours.
 struct PairColorTest {

@@ -89,20 +89,6 @@ struct GridRoi {
 using DepthTriangle = std::uint64_t;
 constexpr DepthTriangle kEmptyPixel = ~DepthTriangle(0);
 
-PERCH2_HD inline std::uint32_t float_bits(float f) {
-  union {
-    float f;
-    std::uint32_t u;
-  } x{f};
-  return x.u;
-}
-PERCH2_HD inline float bits_float(std::uint32_t u) {
-  union {
-    std::uint32_t u;
-    float f;
-  } x{u};
-  return x.f;
-}
 PERCH2_HD inline DepthTriangle pack_depth_triangle(float depth_m, std::uint32_t triangle) {
   return (DepthTriangle(float_bits(depth_m)) << 32) | triangle;
 }
