@@ -220,19 +220,26 @@ struct RenderWhole {
   }
 };
 
-/// Copies hypothesis k's visible samples to its output slot (SoA output of the chunk).
+/// Work item `worker` copies the visible samples of the chunk's hypotheses it pulls from the shared counter
+/// `next` to their output slots (SoA output of the chunk): balanced like RenderWhole, so a descheduled thread
+/// delays the pass by one hypothesis, not by its fixed half of the copies.
 struct ScatterWhole {
-  int first;
+  int first, count;
   const std::int64_t *pixels, *visible, *slot;
   const RenderedSample* samples;
   float *x, *y, *z;
   std::uint32_t* rgb;
   std::int32_t *pixel, *cloud;
-  PERCH2_HD void operator()(std::int64_t k) const {
-    const RenderedSample* in = samples + pixels[k];
-    for (std::int64_t i = 0, s = slot[k]; i < visible[k]; ++i, ++s) {
-      x[s] = in[i].p_cam.x, y[s] = in[i].p_cam.y, z[s] = in[i].p_cam.z, rgb[s] = in[i].rgb;
-      pixel[s] = in[i].pixel, cloud[s] = first + int(k);
+  int* next;
+  PERCH2_HD void operator()(std::int64_t) const {
+    cuda::atomic_ref<int, cuda::thread_scope_device> counter(*next);
+    for (int k = counter.fetch_add(1, cuda::memory_order_relaxed); k < count;
+         k = counter.fetch_add(1, cuda::memory_order_relaxed)) {
+      const RenderedSample* in = samples + pixels[k];
+      for (std::int64_t i = 0, s = slot[k]; i < visible[k]; ++i, ++s) {
+        x[s] = in[i].p_cam.x, y[s] = in[i].p_cam.y, z[s] = in[i].p_cam.z, rgb[s] = in[i].rgb;
+        pixel[s] = in[i].pixel, cloud[s] = first + k;
+      }
     }
   }
 };
@@ -269,12 +276,12 @@ void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const
     PosedPoint* p_cam = arena.take<PosedPoint>(W * V);
     GridSpan* spans = arena.take<GridSpan>(W * V);
     DepthTriangle* zbuf = arena.take<DepthTriangle>(W * R);
-    int* next = reinterpret_cast<int*>(arena.take<std::int64_t>(1));
+    int* next = reinterpret_cast<int*>(arena.take<std::int64_t>(1));  // two counters: render, scatter
     std::int64_t *pixels = arena.take<std::int64_t>(H), *visible = arena.take<std::int64_t>(H),
                  *slot = arena.take<std::int64_t>(H);
     RenderedSample* samples = arena.take<RenderedSample>(P);
     copy_to(pixels, ch.pixels.elements);
-    copy_to(next, std::vector<int>{0});
+    copy_to(next, std::vector<int>{0, 0});
     thrust::for_each(thrust::device, Items(0), Items(workers),
                      RenderWhole{args, params, ch.first, ch.count, d_roi + ch.first, pixels, next, p_cam,
                                  spans, zbuf, std::int64_t(V), std::int64_t(R), samples, visible});
@@ -285,14 +292,14 @@ void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const
     copy_to(slot, slot_host);
     const std::size_t at = batch.size();
     batch.resize(at + std::size_t(slot_host.back()));
-    thrust::for_each(thrust::device, Items(0), Items(ch.count),
-                     ScatterWhole{ch.first, pixels, visible, slot, samples, batch.x.data() + at,
+    thrust::for_each(thrust::device, Items(0), Items(workers),
+                     ScatterWhole{ch.first, ch.count, pixels, visible, slot, samples, batch.x.data() + at,
                                   batch.y.data() + at, batch.z.data() + at, batch.rgb.data() + at,
-                                  batch.pixel.data() + at, batch.cloud.data() + at});
+                                  batch.pixel.data() + at, batch.cloud.data() + at, next + 1});
     for (int k = 1; k <= ch.count; ++k)
       batch.offsets[std::size_t(ch.first + k)] = std::int64_t(at) + slot_host[std::size_t(k)];
     shape.launch("render_hypotheses", 1, workers);
-    shape.launch("scatter", 1, ch.count);
+    shape.launch("scatter", 1, workers);
     ++shape.chunks;
     shape.peak_chunk_bytes = std::max(shape.peak_chunk_bytes, arena.bytes());
   }
