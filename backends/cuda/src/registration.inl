@@ -701,8 +701,8 @@ struct Registration<System>::Impl {
         points,  offsets, pixel, kp, order, num, gs ? gs->image_width_px : 0, gs ? gs->pixel_radius_px : 0,
         md * md, normals};
     const reg_detail::InitState init{points, offsets, P.lambda_initial, centroid, state};
-    if (list_state.empty()) {
-      const std::size_t nt = index.num_points();
+    const std::size_t nt = index.num_points();
+    if (list_state.size() != nt) {  // the first call with targets allocates the lists
       thrust::device_vector<std::int32_t>(nt, 0).swap(list_state);
       list_reach.resize(nt);
       list_entries.resize(nt * reg::kTargetListSize);
