@@ -108,6 +108,7 @@ struct Problem {
 /// What one method returns (fixed-size so a child can send it through a pipe).
 struct Measured {
   double median_s = 0, min_s = 0;
+  double quiet_median_s = 0;  ///< with --load: the quiet runs alternating with the loaded ones
   long peak_kb = 0, growth_kb = 0;
 };
 
@@ -235,30 +236,44 @@ void reset_peak_rss() {
   }
 }
 
+/// --load N: the busy processes of this method's process; quiet and loaded runs then alternate.
+const bench::CompetingLoad* competing = nullptr;
+
 /// Runs `job` `runs` times in this process (a fresh one per method, see main); memory is measured from the
-/// RSS after the problem was built.
+/// RSS after the problem was built. With --load, `runs` quiet runs alternate with `runs` loaded ones
+/// (bench::CompetingLoad::pause/resume) and median_s is the loaded median.
 Measured measure(int runs, const std::function<void(std::vector<Pose>&, std::vector<std::uint8_t>&)>& job,
                  std::vector<Pose>& T, std::vector<std::uint8_t>& conv) {
   reset_peak_rss();
   const long base = current_rss_kb();
-  std::vector<double> t;
+  std::vector<double> t, quiet;
   for (int r = 0; r < runs; ++r) {
+    if (competing) {
+      competing->pause();
+      const double t0 = now_s();
+      job(T, conv);
+      quiet.push_back(now_s() - t0);
+      competing->resume();
+    }
     const double t0 = now_s();
     job(T, conv);
     t.push_back(now_s() - t0);
   }
-  std::sort(t.begin(), t.end());
-  return {t[t.size() / 2], t.front(), peak_rss_kb(), std::max(0L, peak_rss_kb() - base)};
+  Measured m{bench::median(t), *std::min_element(t.begin(), t.end()), 0, peak_rss_kb(),
+             std::max(0L, peak_rss_kb() - base)};
+  m.quiet_median_s = quiet.empty() ? m.median_s : bench::median(quiet);
+  return m;
 }
 
 void row(const char* name, const Measured& m, const Scores& s, std::size_t num, double ref_rate) {
   const double rate = double(num) / m.median_s;
-  std::printf(
-      "| %-28s | %8.3f | %9.0f | %6.2fx | %8.1f | %8.1f | %8.3f | %8.3f | %8.3f | %5.1f%% | %5.1f%% | %6.2f "
-      "|\n",
-      name, m.median_s, rate, ref_rate > 0 ? rate / ref_rate : 1.0, double(m.peak_kb) / 1024,
-      double(m.growth_kb) / 1024, s.median_rms_mm, s.mean_rms_mm, s.median_disp_mm, 100 * s.within_1mm,
-      100 * s.converged, s.mean_passes);
+  std::printf("| %-28s | %8.3f | %9.0f | %6.2fx |", name, m.median_s, rate,
+              ref_rate > 0 ? rate / ref_rate : 1.0);
+  if (competing)
+    std::printf(" %9.0f | %4.0f%% |", double(num) / m.quiet_median_s, 100 * m.quiet_median_s / m.median_s);
+  std::printf(" %8.1f | %8.1f | %8.3f | %8.3f | %8.3f | %5.1f%% | %5.1f%% | %6.2f |\n",
+              double(m.peak_kb) / 1024, double(m.growth_kb) / 1024, s.median_rms_mm, s.mean_rms_mm,
+              s.median_disp_mm, 100 * s.within_1mm, 100 * s.converged, s.mean_passes);
   std::fflush(stdout);
 }
 
@@ -453,16 +468,20 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "LINEMOD cat model not found: pass --model path/to/obj_06.ply\n");
     return 2;
   }
-  if (!method.empty()) return run_method(method, num_sources, runs, model, peer_rate);
-  const bench::CompetingLoad competing(load);
+  if (!method.empty()) {
+    const bench::CompetingLoad load_processes(load);
+    if (load > 0) competing = &load_processes;
+    return run_method(method, num_sources, runs, model, peer_rate);
+  }
 
   // One fresh process per method: separate peak-memory figures, and no OpenMP state shared across methods.
   auto run = [&](const std::string& m) {
-    const std::string cmd =
-        std::string(argv[0]) + " --method " + m + " --sources " + std::to_string(num_sources) + " --runs " +
-        std::to_string(runs) + " --model '" + model + "' --peer-rate " + std::to_string(peer_rate) +
-        " --translation-eps " + bench::format("%g", translation_eps_m) + " --rotation-eps " +
-        bench::format("%g", rotation_eps_rad) + " --scale " + bench::format("%g", model_scale);
+    const std::string cmd = std::string(argv[0]) + " --method " + m + " --sources " +
+                            std::to_string(num_sources) + " --runs " + std::to_string(runs) + " --model '" +
+                            model + "' --peer-rate " + std::to_string(peer_rate) + " --translation-eps " +
+                            bench::format("%g", translation_eps_m) + " --rotation-eps " +
+                            bench::format("%g", rotation_eps_rad) + " --scale " +
+                            bench::format("%g", model_scale) + " --load " + std::to_string(load);
     FILE* f = popen(cmd.c_str(), "r");
     if (!f) return;
     char line[1024];
@@ -483,13 +502,17 @@ int main(int argc, char** argv) {
   std::printf(
       "settings: max_correspondence_distance %.3f m, max_iterations %d, epsilons %.0e m / %.0e rad, "
       "k %d, covariance epsilon %.0e (small_gicp and PCL GICP get the same values); %d competing busy "
-      "processes\n\n",
+      "processes%s\n\n",
       gs.max_correspondence_distance_m, gs.max_iterations, gs.translation_epsilon_m, gs.rotation_epsilon_rad,
-      gs.k_neighbors, gs.covariance_epsilon, load);
+      gs.k_neighbors, gs.covariance_epsilon, load,
+      load > 0 ? " (median s, aligns/s, vs peer: loaded runs; quiet aligns/s: the quiet runs alternating "
+                 "with them; kept: loaded / quiet)"
+               : "");
   std::printf(
-      "| method                       | median s | aligns/s | vs peer | peak MB  | growth MB| med RMS mm| "
-      "mean RMS mm| med disp mm| <1mm  | conv   | passes |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+      "| method                       | median s | aligns/s | vs peer |%s peak MB  | growth MB| med RMS mm| "
+      "mean RMS mm| med disp mm| <1mm  | conv   | passes |\n",
+      load > 0 ? " quiet aligns/s | kept |" : "");
+  std::printf("|---|---|---|---|%s---|---|---|---|---|---|---|---|\n", load > 0 ? "---|---|" : "");
   run("small_gicp");  // the peer the ratio column refers to (PCL when small_gicp is not built)
   if (use_pcl) run("pcl");
   for (const char* m : {"cpu_gicp", "omp_gicp", "cpu_icp", "omp_icp"}) run(m);

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <signal.h>
+#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -17,6 +18,7 @@
 #include <functional>
 #include <random>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "perch2/core/mesh.hpp"
@@ -65,37 +67,45 @@ inline long status_kb(const char* field) {
   return 0;
 }
 
-/// Runs f in a forked child; returns f's two results and the child's peak resident memory (VmHWM, MiB),
-/// which includes what the parent held at the fork. Each configuration gets its own process so one
-/// configuration's peak does not hide another's.
-inline std::array<double, 3> in_child(const std::function<std::array<double, 2>()>& f) {
+/// Runs f (returning std::array<double, N>) in a forked child; returns f's N results and the child's peak
+/// resident memory (VmHWM, MiB), which includes what the parent held at the fork. Each configuration gets
+/// its own process so one configuration's peak does not hide another's.
+template <class F>
+auto in_child(const F& f) {
+  using Results = decltype(f());
+  constexpr std::size_t N = std::tuple_size<Results>::value;
+  std::array<double, N + 1> out{};
   int fd[2];
-  if (pipe(fd) != 0) return {0, 0, 0};
+  if (pipe(fd) != 0) return out;
   const pid_t pid = fork();
   if (pid == 0) {
     close(fd[0]);
-    const std::array<double, 2> r = f();
-    const std::array<double, 3> out{r[0], r[1], double(status_kb("VmHWM")) / 1024.0};
+    const Results r = f();
+    std::copy(r.begin(), r.end(), out.begin());
+    out[N] = double(status_kb("VmHWM")) / 1024.0;
     (void)!write(fd[1], out.data(), sizeof(out));
     _exit(0);
   }
   close(fd[1]);
-  std::array<double, 3> in{0, 0, 0};
-  (void)!read(fd[0], in.data(), sizeof(in));
+  (void)!read(fd[0], out.data(), sizeof(out));
   close(fd[0]);
   int status = 0;
   waitpid(pid, &status, 0);
-  return in;
+  return out;
 }
 
 /// `n` busy processes spinning for this object's lifetime: the "shared CPU" condition of a robot, where
 /// another process competes for the cores the estimator's threads expect (bench option --load N).
+/// pause()/resume() stop and continue them, so quiet and loaded runs can alternate in one run.
 class CompetingLoad {
  public:
   explicit CompetingLoad(int n) {
+    const pid_t parent = getpid();
     for (int k = 0; k < n; ++k) {
       const pid_t pid = fork();
       if (pid == 0) {
+        prctl(PR_SET_PDEATHSIG, SIGKILL);  // never outlive a benchmark that aborted
+        if (getppid() != parent) _exit(0);
         for (volatile unsigned long spin = 0;; spin = spin + 1) {
         }
       }
@@ -108,10 +118,49 @@ class CompetingLoad {
   }
   CompetingLoad(const CompetingLoad&) = delete;
   CompetingLoad& operator=(const CompetingLoad&) = delete;
+  bool empty() const { return pids_.empty(); }
+  void pause() const { signal_all(SIGSTOP, 'T'); }
+  void resume() const { signal_all(SIGCONT, 'R'); }
 
  private:
+  /// Sends `sig` and waits (up to 0.1 s) until each process shows `state` in /proc: a run timed right after
+  /// pause() must not share the CPU with a process that has not stopped yet.
+  void signal_all(int sig, char state) const {
+    for (const pid_t pid : pids_) {
+      kill(pid, sig);
+      for (int k = 0; k < 100 && process_state(pid) != state; ++k) usleep(1000);
+    }
+  }
+  static char process_state(pid_t pid) {
+    std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
+    std::string line;
+    std::getline(f, line);
+    const std::size_t at = line.rfind(')');  // "pid (comm) S ..."
+    return at == std::string::npos || at + 2 >= line.size() ? '?' : line[at + 2];
+  }
   std::vector<pid_t> pids_;
 };
+
+/// Median wall times (seconds) of f on a quiet CPU and beside `load`'s busy processes, `runs` of each in
+/// alternation (quiet, loaded, quiet, ...) after one warm-up call, so the host's speed drifting during the
+/// run hits both alike; "kept" = quiet / loaded is then a ratio measured in one run. Leaves `load` running.
+inline std::array<double, 2> median_seconds_quiet_loaded(int runs, const CompetingLoad& load,
+                                                         const std::function<void()>& f) {
+  f();
+  std::vector<double> quiet, loaded;
+  for (int r = 0; r < runs; ++r)
+    for (std::vector<double>* t : {&quiet, &loaded}) {
+      if (t == &quiet)
+        load.pause();
+      else
+        load.resume();
+      const auto t0 = std::chrono::steady_clock::now();
+      f();
+      t->push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
+  load.resume();
+  return {median(quiet), median(loaded)};
+}
 
 /// Tabletop-like poses: 0.5-1.0 m away, anywhere in the central part of the view, any rotation.
 inline std::vector<Hypothesis> poses(int n, const Mesh& mesh) {
