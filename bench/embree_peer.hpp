@@ -85,9 +85,10 @@ class EmbreeRenderer {
     const Vec3f org{-(T.R.m[0] * T.t.x + T.R.m[3] * T.t.y + T.R.m[6] * T.t.z),
                     -(T.R.m[1] * T.t.x + T.R.m[4] * T.t.y + T.R.m[7] * T.t.z),
                     -(T.R.m[2] * T.t.x + T.R.m[5] * T.t.y + T.R.m[8] * T.t.z)};
+    const GridRays grid(K, s.stride);
     for (int j = 0; j < roi.height; ++j)
       for (int i = 0; i < roi.width; ++i) {
-        const Vec3f d = grid_ray(K, s.stride, roi.i0 + i, roi.j0 + j);
+        const Vec3f d = grid(roi.i0 + i, roi.j0 + j);
         RTCRayHit& r = rays[std::size_t(j) * roi.width + i];
         r.ray.org_x = org.x, r.ray.org_y = org.y, r.ray.org_z = org.z;
         r.ray.dir_x = T.R.m[0] * d.x + T.R.m[3] * d.y + T.R.m[6] * d.z;
@@ -111,7 +112,7 @@ class EmbreeRenderer {
         const Vec3f hit_obj{r.ray.org_x + r.ray.tfar * r.ray.dir_x, r.ray.org_y + r.ray.tfar * r.ray.dir_y,
                             r.ray.org_z + r.ray.tfar * r.ray.dir_z};
         RenderedSample p;
-        p.p_cam = r.ray.tfar * grid_ray(K, s.stride, roi.i0 + i, roi.j0 + j);
+        p.p_cam = r.ray.tfar * grid(roi.i0 + i, roi.j0 + j);
         p.rgb = pack_rgb(
             shade(m, int(r.hit.primID), m.vertices[f[0]], m.vertices[f[1]], m.vertices[f[2]], hit_obj));
         p.pixel = v * K.width + u;

@@ -152,9 +152,10 @@ struct Resolve {
     const std::int64_t base = c.pixels.elements[r.segment];
     const MeshView& m = h.views[h.model[hyp]];
     const PosedVertices verts_cam = c.posed(r.segment);
+    const GridRays rays(K, stride);
     for (std::int64_t idx = r.begin; idx < r.end; ++idx) {
       const std::int64_t k = base + idx;
-      visible[k] = resolve_sample(m, verts_cam, c.zbuf[k], K, stride, roi.i0 + int(idx % roi.width),
+      visible[k] = resolve_sample(m, verts_cam, c.zbuf[k], K, rays, roi.i0 + int(idx % roi.width),
                                   roi.j0 + int(idx / roi.width), occ, h.label[hyp], samples[k]);
     }
   }
