@@ -238,7 +238,8 @@ CloudBatch random_batch(std::mt19937& rng, int clouds, int max_points) {
 
 }  // namespace
 
-TEST_CASE("cost: cpu and thrust_omp agree exactly on random data") {
+TEST_CASE(
+    "cost: cpu, thrust_omp (whole hypotheses) and its GPU pass structure agree exactly on random data") {
   std::mt19937 rng(7);
   const CloudBatch observed = random_batch(rng, 2, 3000);
   const CloudBatch rendered = random_batch(rng, 60, 400);
@@ -256,23 +257,31 @@ TEST_CASE("cost: cpu and thrust_omp agree exactly on random data") {
   }
   const cpu::Cost reference(observed);
   const thrust_omp::Backend::Cost thrust(observed);
+  static_assert(thrust_backend::OmpSystem::cost_whole_hypotheses &&
+                !thrust_backend::OmpPassesSystem::cost_whole_hypotheses);
+  const thrust_backend::Cost<thrust_backend::OmpPassesSystem> passes(observed);
   for (const bool colour : {true, false})
     for (const ColorRule rule : {ColorRule::Nearest, ColorRule::AnyNeighbour})
       for (const bool invariant : {true, false}) {
         CostSettings s;
         s.use_color = colour, s.color_rule = rule, s.delta_m = 0.004f, s.tau_c = 12.5f;
         s.shading_invariant = invariant;
-        const CostResult a = reference.evaluate(rendered, req, s), b = thrust.evaluate(rendered, req, s);
+        const CostResult a = reference.evaluate(rendered, req, s), b = thrust.evaluate(rendered, req, s),
+                         c = passes.evaluate(rendered, req, s);
         REQUIRE(a.size() == b.size());
+        REQUIRE(a.size() == c.size());
         int differences = 0, colour_outliers = 0, in_volume = 0, depth_outliers = 0;
         for (std::size_t h = 0; h < a.size(); ++h) {
-          const CostBreakdown &x = a.hypotheses[h], &y = b.hypotheses[h];
-          differences += x.rendered_inliers != y.rendered_inliers ||
-                         x.rendered_depth_outliers != y.rendered_depth_outliers ||
-                         x.rendered_color_outliers != y.rendered_color_outliers ||
-                         x.observed_in_volume != y.observed_in_volume ||
-                         x.observed_depth_outliers != y.observed_depth_outliers ||
-                         x.observed_color_outliers != y.observed_color_outliers || x.total != y.total;
+          const CostBreakdown &x = a.hypotheses[h], &y = b.hypotheses[h], &z = c.hypotheses[h];
+          const auto same = [](const CostBreakdown& u, const CostBreakdown& v) {
+            return u.rendered_inliers == v.rendered_inliers &&
+                   u.rendered_depth_outliers == v.rendered_depth_outliers &&
+                   u.rendered_color_outliers == v.rendered_color_outliers &&
+                   u.observed_in_volume == v.observed_in_volume &&
+                   u.observed_depth_outliers == v.observed_depth_outliers &&
+                   u.observed_color_outliers == v.observed_color_outliers && u.total == v.total;
+          };
+          differences += !same(x, y) + !same(x, z);
           colour_outliers += x.rendered_color_outliers + x.observed_color_outliers;
           depth_outliers += x.rendered_depth_outliers + x.observed_depth_outliers;
           in_volume += x.observed_in_volume;

@@ -7,6 +7,9 @@
 //            pair records of the observed points of its hypothesis' volume it meets (binary search in the
 //            hypothesis' sorted keys; atomic or / min, see PairColorTest), so J_o needs no search and no
 //            index over the rendered points.
+//            CPU systems (System::cost_whole_hypotheses): one work item per thread classifies whole
+//            hypotheses' rendered points, pulled from a counter, finding the records through its own dense
+//            slot array (observed point -> position in the hypothesis' list) instead of the binary search.
 //   J_o:     one thread per listed (hypothesis, point) classifies it from its record.
 //   One thread per hypothesis sums its point classes.
 #include <thrust/copy.h>
@@ -70,6 +73,8 @@ struct PairVisitor {
   std::int64_t h;
   std::int32_t p;
   std::uint32_t key;  ///< FailedColours::key of p's colour
+  /// Whole hypotheses: slot[o] = o's position in h's keys, or -1; nullptr: binary search in h's keys.
+  const std::int32_t* slot;
   PERCH2_HD void operator()(std::int32_t o, float d2) {
     const PairColorTest& t = r->test;
     const bool test_colour = t.use_color && t.any_rule && key != 0u;
@@ -80,16 +85,8 @@ struct PairVisitor {
     } else {
       vote(o, d2);
     }
-    const std::uint64_t okey = volume_key(h, o);
-    std::int64_t lo = r->offsets[h], len = r->offsets[h + 1] - lo;  // lower bound of okey
-    while (len > 0) {
-      const std::int64_t half = len / 2;
-      if (r->keys[lo + half] < okey)
-        lo += half + 1, len -= half + 1;
-      else
-        len = half;
-    }
-    if (lo == r->offsets[h + 1] || r->keys[lo] != okey) return;
+    const std::int64_t lo = record_of(o);
+    if (lo < 0) return;
     cuda::atomic_ref<std::uint32_t, cuda::thread_scope_device> flags(r->flags[lo]);
     std::uint32_t set = kPairFound;
     if (t.use_color && !t.any_rule) {
@@ -113,6 +110,20 @@ struct PairVisitor {
     }
     if ((now | set) != now) flags.fetch_or(set, cuda::memory_order_relaxed);
   }
+  /// Position of o's pair record among all keys, or -1 when o is not in h's volume.
+  PERCH2_HD std::int64_t record_of(std::int32_t o) const {
+    if (slot) return slot[o] < 0 ? -1 : r->offsets[h] + slot[o];
+    const std::uint64_t okey = volume_key(h, o);
+    std::int64_t lo = r->offsets[h], len = r->offsets[h + 1] - lo;  // lower bound of okey
+    while (len > 0) {
+      const std::int64_t half = len / 2;
+      if (r->keys[lo + half] < okey)
+        lo += half + 1, len -= half + 1;
+      else
+        len = half;
+    }
+    return lo == r->offsets[h + 1] || r->keys[lo] != okey ? -1 : lo;
+  }
   /// Only a hypothesis without volume points may stop at the point's own decision.
   PERCH2_HD bool done() const { return r->offsets[h + 1] == r->offsets[h] && vote.done(); }
 };
@@ -129,15 +140,43 @@ struct ClassifyRendered {
   const std::int32_t* segment_of_cloud;
   PairRecords records;
   PERCH2_HD std::uint8_t operator()(std::int64_t i) const {
-    const int c = find_segment(offsets, num_clouds, i);
+    return classify(i, find_segment(offsets, num_clouds, i), nullptr);
+  }
+  /// Rendered point i of cloud c; slot: see PairVisitor.
+  PERCH2_HD std::uint8_t classify(std::int64_t i, int c, const std::int32_t* slot) const {
     const VoteParams& s = params;
     PairVisitor visit{{lab[i], observed.lab, s.tau_c, s.kL, s.use_color, s.any_rule},
                       &records,
                       c,
                       std::int32_t(i),
-                      FailedColours::key(records.rendered_rgb[i])};
+                      FailedColours::key(records.rendered_rgb[i]),
+                      slot};
     grid_radius_visit(observed.grid, segment_of_cloud[c], points[i], s.delta_m, visit);
     return visit.vote.result();
+  }
+};
+
+/// J_r by whole hypotheses (CPU systems): work item `worker` pulls hypotheses from the counter `next`,
+/// marks the positions of its volume points' records in its own slot array (num_observed entries, all -1
+/// between hypotheses), classifies the hypothesis' rendered points and clears the marks.
+struct ClassifyRenderedWhole {
+  ClassifyRendered each;
+  std::int32_t* slots;
+  std::int64_t num_observed;
+  int* next;
+  std::uint8_t* classes;
+  PERCH2_HD void operator()(std::int64_t worker) const {
+    std::int32_t* slot = slots + worker * num_observed;
+    const PairRecords& r = each.records;
+    cuda::atomic_ref<int, cuda::thread_scope_device> counter(*next);
+    for (int h = counter.fetch_add(1, cuda::memory_order_relaxed); h < each.num_clouds;
+         h = counter.fetch_add(1, cuda::memory_order_relaxed)) {
+      const std::int64_t b = r.offsets[h], e = r.offsets[h + 1];
+      for (std::int64_t j = b; j < e; ++j) slot[r.keys[j] & 0xffffffffu] = std::int32_t(j - b);
+      for (std::int64_t i = each.offsets[h]; i < each.offsets[h + 1]; ++i)
+        classes[i] = each.classify(i, h, slot);
+      for (std::int64_t j = b; j < e; ++j) slot[r.keys[j] & 0xffffffffu] = -1;
+    }
   }
 };
 
@@ -337,9 +376,18 @@ CostResult Cost<System>::evaluate(const CloudBatch& rendered, const CostRequest&
   // J_r, filling the pair records; then J_o from them.
   thrust::device_vector<std::uint8_t> rclass(static_cast<std::size_t>(nr));
   const Side observed_side{m.index.view().grid, m.observed_lab(s)};
-  thrust::transform(thrust::device, first, first + nr, ptr(rclass),
-                    ClassifyRendered{observed_side, params, ptr(rpoints), ptr(rlab), ptr(roffsets), int(n),
-                                     ptr(seg), records});
+  const ClassifyRendered classify{observed_side, params, ptr(rpoints), ptr(rlab),
+                                  ptr(roffsets), int(n), ptr(seg),     records};
+  if constexpr (System::cost_whole_hypotheses) {
+    const int workers = cpu_system_workers();
+    const std::int64_t num_observed = std::int64_t(m.lab.size());
+    thrust::device_vector<std::int32_t> slots(std::size_t(workers) * std::size_t(num_observed), -1);
+    thrust::device_vector<int> next(1, 0);
+    thrust::for_each(thrust::device, first, first + workers,
+                     ClassifyRenderedWhole{classify, ptr(slots), num_observed, ptr(next), ptr(rclass)});
+  } else {
+    thrust::transform(thrust::device, first, first + nr, ptr(rclass), classify);
+  }
   thrust::device_vector<std::uint8_t> oclass(static_cast<std::size_t>(num_pairs));
   thrust::transform(thrust::device, first, first + num_pairs, ptr(oclass), ClassifyObserved{records});
 

@@ -3,4 +3,5 @@
 
 namespace perch2::thrust_backend {
 template class Cost<OmpSystem>;
-}
+template class Cost<OmpPassesSystem>;
+}  // namespace perch2::thrust_backend

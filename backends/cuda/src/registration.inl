@@ -22,9 +22,6 @@
 #include <limits>
 #include <map>
 #include <mutex>
-#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
-#include <omp.h>
-#endif
 
 #include "perch2/core/segments.hpp"
 #include "perch2/cuda/knn.hpp"
@@ -579,15 +576,6 @@ struct RegisterClouds {
   }
 };
 
-/// Work items of the whole-cloud pass: the threads of a CPU system (each pulls clouds until none is left).
-inline int whole_cloud_workers() {
-#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
-  return omp_get_max_threads();
-#else
-  return 1;  // GPU systems register in passes
-#endif
-}
-
 }  // namespace reg_detail
 
 template <class System>
@@ -716,7 +704,7 @@ struct Registration<System>::Impl {
     const reg_detail::StepHypothesis step{P, centroid, hyp_blocks, blocks, state};
 
     if constexpr (System::registration_whole_clouds) {
-      const int workers = reg_detail::whole_cloud_workers();
+      const int workers = cpu_system_workers();
       write_at(w.any_active, 0, std::int32_t(0));  // the clouds' shared counter
       thrust::for_each(thrust::device, pts, pts + workers,
                        reg_detail::RegisterClouds{num, offsets, hyp_blocks, corr, n, normal_mode, sort_keys,

@@ -17,9 +17,6 @@
 #include <algorithm>
 #include <cuda/atomic>
 #include <mutex>
-#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
-#include <omp.h>
-#endif
 
 #include "perch2/core/segments.hpp"
 #include "perch2/cuda/launch_plan.hpp"
@@ -183,16 +180,6 @@ struct Scatter {
   }
 };
 
-/// Work items of the whole-hypothesis pass: the threads of a CPU system (each item pulls hypotheses until
-/// none is left, so one item per thread balances the load dynamically inside one parallel region).
-inline int whole_hypothesis_workers() {
-#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
-  return omp_get_max_threads();
-#else
-  return 1;  // GPU systems render in passes
-#endif
-}
-
 /// Work item `worker` renders the chunk's hypotheses it pulls from the shared counter `next`, with its own
 /// scratch, into the hypothesis' slice of `samples` (its ROI offset); visible[k]: how many it wrote.
 struct RenderWhole {
@@ -263,7 +250,7 @@ void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const
   static_assert(!System::pinned_host_buffers,
                 "whole-hypothesis rendering needs host-accessible device memory");
   using Items = thrust::counting_iterator<std::int64_t>;
-  const int workers = whole_hypothesis_workers();
+  const int workers = cpu_system_workers();
   const std::vector<WholeRenderChunk> chunks =
       plan_whole_render_chunks(hyp_vertices, roi_samples, budget, workers);
   std::size_t arena_bytes = 0;

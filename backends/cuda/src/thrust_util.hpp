@@ -22,7 +22,21 @@
 #include "perch2/cuda/launch_plan.hpp"
 #include "perch2/cuda/system.hpp"
 
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
+#include <omp.h>
+#endif
+
 namespace perch2::thrust_backend {
+
+/// Work items of a whole-unit pass on a CPU system (whole hypotheses or clouds, each item pulling units from
+/// a shared counter until none is left): one per thread. GPU systems run such stages in passes instead.
+inline int cpu_system_workers() {
+#if THRUST_DEVICE_SYSTEM == THRUST_DEVICE_SYSTEM_OMP
+  return omp_get_max_threads();
+#else
+  return 1;
+#endif
+}
 
 /// Policy for launches the host need not wait for: on CUDA thrust::cuda::par_nosync (kernels stay ordered on
 /// the default stream; the next copy to the host or synchronising algorithm waits for them), elsewhere

@@ -1,5 +1,7 @@
 // Thrust cost stage: one thread per rendered point (J_r) and per (hypothesis, observed point in its volume)
 // pair (J_o), each visiting the other cloud's uniform grid within delta; per-hypothesis sums on the device.
+// CPU systems (System::cost_whole_hypotheses) classify the rendered points of whole hypotheses per work
+// item instead (see cost.inl).
 #pragma once
 
 #include <memory>
@@ -32,5 +34,6 @@ class PERCH2_API Cost {
 
 extern template class Cost<CudaSystem>;
 extern template class Cost<OmpSystem>;
+extern template class Cost<OmpPassesSystem>;
 
 }  // namespace perch2::thrust_backend

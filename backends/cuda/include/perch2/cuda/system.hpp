@@ -39,6 +39,10 @@ struct PERCH2_API CudaSystem {
   /// Registration: false: per iteration one pass over blocks of points and one over hypotheses; true: one
   /// pass per call whose work items register whole source clouds (see OmpSystem).
   static constexpr bool registration_whole_clouds = false;
+  /// Cost: false: J_r as one work item per rendered point, each finding the pair record of a volume point it
+  /// meets by binary search in its hypothesis' sorted keys; true: work items classify whole hypotheses'
+  /// rendered points, finding those records through a per-item dense slot array (see OmpSystem).
+  static constexpr bool cost_whole_hypotheses = false;
   /// Results equal the reference backend's bit for bit (false only in a PERCH2_CUDA_FMA=ON build).
   static constexpr bool bitwise_reproducible = PERCH2_CUDA_FMA == 0;
   /// Device -> host copies of stage results land in a page-locked (pinned) staging buffer the stage object
@@ -62,16 +66,21 @@ struct PERCH2_API OmpSystem {
   /// shared counter: one parallel region per call instead of ~2 per iteration, each a barrier waiting for
   /// the slowest (or a descheduled) thread.
   static constexpr bool registration_whole_clouds = true;
+  /// A CPU classifies each hypothesis' rendered points in one thread, hypotheses pulled from a shared
+  /// counter: the pair records of its volume points are found with one load from the thread's slot array
+  /// (the binary search per visited pair was ~20% of the stage), as the reference backend does.
+  static constexpr bool cost_whole_hypotheses = true;
   static constexpr bool bitwise_reproducible = true;
   static constexpr bool pinned_host_buffers = false;  ///< host memory is device memory: copy directly
 };
-/// The CUDA renderer's and registration's pass structure run on OpenMP: not faster, but it runs the GPU
-/// path's passes (the same functors and launch plan) against the reference on every CI run.
+/// The CUDA renderer's, registration's and cost's pass structure run on OpenMP: not faster, but it runs the
+/// GPU path's passes (the same functors and launch plan) against the reference on every CI run.
 struct PERCH2_API OmpPassesSystem : OmpSystem {
   static constexpr const char* name = "thrust_omp_passes";
   static constexpr std::size_t default_chunk_bytes = std::size_t(4) << 20;  ///< stays in cache
   static constexpr bool render_whole_hypotheses = false;
   static constexpr bool registration_whole_clouds = false;
+  static constexpr bool cost_whole_hypotheses = false;
 };
 
 /// What the last call of a stage object launched and allocated: lets a GPU user see the launch shapes and
