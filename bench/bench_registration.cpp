@@ -246,18 +246,17 @@ Measured measure(int runs, const std::function<void(std::vector<Pose>&, std::vec
                  std::vector<Pose>& T, std::vector<std::uint8_t>& conv) {
   reset_peak_rss();
   const long base = current_rss_kb();
+  const auto timed = [&] { job(T, conv); };
   std::vector<double> t, quiet;
-  for (int r = 0; r < runs; ++r) {
-    if (competing) {
-      competing->pause();
+  if (competing) {
+    auto both = bench::seconds_quiet_loaded(runs, *competing, timed);
+    quiet = std::move(both[0]), t = std::move(both[1]);
+  } else {
+    for (int r = 0; r < runs; ++r) {
       const double t0 = now_s();
-      job(T, conv);
-      quiet.push_back(now_s() - t0);
-      competing->resume();
+      timed();
+      t.push_back(now_s() - t0);
     }
-    const double t0 = now_s();
-    job(T, conv);
-    t.push_back(now_s() - t0);
   }
   Measured m{bench::median(t), *std::min_element(t.begin(), t.end()), 0, peak_rss_kb(),
              std::max(0L, peak_rss_kb() - base)};

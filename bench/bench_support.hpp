@@ -118,7 +118,6 @@ class CompetingLoad {
   }
   CompetingLoad(const CompetingLoad&) = delete;
   CompetingLoad& operator=(const CompetingLoad&) = delete;
-  bool empty() const { return pids_.empty(); }
   void pause() const { signal_all(SIGSTOP, 'T'); }
   void resume() const { signal_all(SIGCONT, 'R'); }
 
@@ -141,25 +140,30 @@ class CompetingLoad {
   std::vector<pid_t> pids_;
 };
 
-/// Median wall times (seconds) of f on a quiet CPU and beside `load`'s busy processes, `runs` of each in
-/// alternation (quiet, loaded, quiet, ...) after one warm-up call, so the host's speed drifting during the
-/// run hits both alike; "kept" = quiet / loaded is then a ratio measured in one run. Leaves `load` running.
+/// Wall times (seconds) of f on a quiet CPU and beside `load`'s busy processes, `runs` of each in
+/// alternation (quiet, loaded, quiet, ...), so the host's speed drifting during the run hits both alike;
+/// "kept" = quiet / loaded is then a ratio measured in one run. Leaves `load` running.
+inline std::array<std::vector<double>, 2> seconds_quiet_loaded(int runs, const CompetingLoad& load,
+                                                               const std::function<void()>& f) {
+  std::array<std::vector<double>, 2> t;  // quiet, loaded
+  for (int r = 0; r < runs; ++r)
+    for (int loaded = 0; loaded < 2; ++loaded) {
+      loaded ? load.resume() : load.pause();
+      const auto t0 = std::chrono::steady_clock::now();
+      f();
+      t[std::size_t(loaded)].push_back(
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
+  load.resume();
+  return t;
+}
+
+/// Median quiet and loaded wall times of seconds_quiet_loaded, after one warm-up call.
 inline std::array<double, 2> median_seconds_quiet_loaded(int runs, const CompetingLoad& load,
                                                          const std::function<void()>& f) {
   f();
-  std::vector<double> quiet, loaded;
-  for (int r = 0; r < runs; ++r)
-    for (std::vector<double>* t : {&quiet, &loaded}) {
-      if (t == &quiet)
-        load.pause();
-      else
-        load.resume();
-      const auto t0 = std::chrono::steady_clock::now();
-      f();
-      t->push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    }
-  load.resume();
-  return {median(quiet), median(loaded)};
+  const auto t = seconds_quiet_loaded(runs, load, f);
+  return {median(t[0]), median(t[1])};
 }
 
 /// Tabletop-like poses: 0.5-1.0 m away, anywhere in the central part of the view, any rotation.
