@@ -274,7 +274,7 @@ Row evaluate(const Options& o, const std::string& name, const std::string& dir) 
   std::ofstream per(dir + "/instances.txt");
   for (const auto& i : row.report.instances)
     per << i.scene_id << ' ' << i.im_id << ' ' << i.obj_id << ' ' << i.gt_index << ' ' << i.visib_fract << ' '
-        << 1000 * i.adds_m << ' ' << 1000 * i.add_s_m << '\n';
+        << 1000 * i.adds_m << ' ' << 1000 * i.add_or_adds_m << '\n';
   return row;
 }
 
@@ -295,7 +295,7 @@ void print_tables(const std::vector<Row>& rows) {
     for (const Row& r : rows) {
       const eval::Scores* s = scores_of(r);
       if (s)
-        std::printf("  %6.1f / %6.1f / %6.1f", 100 * s->auc_adds, 100 * s->auc_add_s,
+        std::printf("  %6.1f / %6.1f / %6.1f", 100 * s->auc_adds, 100 * s->auc_add_or_adds,
                     100 * s->adds_below_2cm);
       else
         std::printf("  %-22s", "-");

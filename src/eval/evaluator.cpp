@@ -63,7 +63,7 @@ struct Recalls {
 
 struct Accumulator {
   int targets = 0;
-  std::vector<double> add, adds, add_s;
+  std::vector<double> add, adds, add_or_adds;
   Recalls vsd, mssd, mspd;
   void init(const EvalSettings& s) {
     vsd.tp.assign(s.vsd_taus.size() * s.vsd_thresholds.size(), 0);
@@ -75,7 +75,7 @@ struct Accumulator {
     out.num_targets = targets;
     out.auc_add = auc_ycb(add, max_m);
     out.auc_adds = auc_ycb(adds, max_m);
-    out.auc_add_s = auc_ycb(add_s, max_m);
+    out.auc_add_or_adds = auc_ycb(add_or_adds, max_m);
     if (!adds.empty()) {
       out.adds_below_1cm =
           double(std::count_if(adds.begin(), adds.end(), [](double e) { return e < 0.01; })) / adds.size();
@@ -242,7 +242,7 @@ void instance_results(const Context& c, const ObjectData& od, const ErrorTable& 
     InstanceResult r;
     r.scene_id = im_key.first, r.im_id = im_key.second, r.obj_id = obj, r.gt_index = int(gts[g]);
     r.visib_fract = info.gt[gts[g]].visib_fract;
-    r.add_m = add[g], r.adds_m = adds[g], r.add_s_m = od.info.is_symmetric() ? adds[g] : add[g];
+    r.add_m = add[g], r.adds_m = adds[g], r.add_or_adds_m = od.info.is_symmetric() ? adds[g] : add[g];
     r.mssd_m = mssd[g], r.mspd_px = mspd[g];
     r.add_line = add_match[g] >= 0 ? c.estimates[ests[std::size_t(add_match[g])]].line : 0;
     r.adds_line = adds_match[g] >= 0 ? c.estimates[ests[std::size_t(adds_match[g])]].line : 0;
@@ -398,7 +398,7 @@ EvalReport evaluate(const BopDataset& data, const std::vector<PoseEstimate>& est
       if (acc.mssd.tp.empty()) acc.init(settings);
       for (Accumulator* a : {&acc, &all}) {
         a->targets += 1;
-        a->add.push_back(r.add_m), a->adds.push_back(r.adds_m), a->add_s.push_back(r.add_s_m);
+        a->add.push_back(r.add_m), a->adds.push_back(r.adds_m), a->add_or_adds.push_back(r.add_or_adds_m);
       }
       rep.instances.push_back(r);
     }

@@ -15,7 +15,7 @@ std::string row(const std::string& name, const Scores& s, bool vsd) {
   char vsd_text[16] = "      -";
   if (vsd) std::snprintf(vsd_text, sizeof vsd_text, "%7.1f", 100 * s.ar_vsd);
   std::snprintf(buf, sizeof buf, "%-8s %7d %7.1f %7.1f %7.1f %7.1f %7.1f %s %7.1f %7.1f %7.1f\n",
-                name.c_str(), s.num_targets, 100 * s.auc_add, 100 * s.auc_adds, 100 * s.auc_add_s,
+                name.c_str(), s.num_targets, 100 * s.auc_add, 100 * s.auc_adds, 100 * s.auc_add_or_adds,
                 100 * s.adds_below_1cm, 100 * s.adds_below_2cm, vsd_text, 100 * s.ar_mssd, 100 * s.ar_mspd,
                 100 * s.ar);
   return buf;
@@ -25,7 +25,7 @@ nlohmann::json scores_json(const Scores& s) {
   return {{"targets", s.num_targets},
           {"auc_add", s.auc_add},
           {"auc_adds", s.auc_adds},
-          {"auc_add_s", s.auc_add_s},
+          {"auc_add_or_adds", s.auc_add_or_adds},
           {"adds_below_1cm", s.adds_below_1cm},
           {"adds_below_2cm", s.adds_below_2cm},
           {"ar_vsd", s.ar_vsd},
@@ -93,7 +93,7 @@ std::string report_json(const EvalReport& r, const EvalSettings& s) {
                     {"visib_fract", i.visib_fract},
                     {"add_m", (i.add_m)},
                     {"adds_m", (i.adds_m)},
-                    {"add_s_m", (i.add_s_m)},
+                    {"add_or_adds_m", (i.add_or_adds_m)},
                     {"mssd_m", (i.mssd_m)},
                     {"mspd_px", (i.mspd_px)},
                     {"add_line", i.add_line},

@@ -56,7 +56,7 @@ struct Scores {
   int num_targets = 0;                            ///< valid GT instances
   double auc_add = 0;                             ///< AUC of ADD, [0, 1]
   double auc_adds = 0;                            ///< AUC of ADD-S
-  double auc_add_s = 0;                           ///< AUC of ADD(-S)
+  double auc_add_or_adds = 0;                     ///< AUC of ADD(-S)
   double adds_below_1cm = 0, adds_below_2cm = 0;  ///< fraction of instances with ADD-S < 1 cm / 2 cm
   double ar_vsd = 0, ar_mssd = 0, ar_mspd = 0;    ///< average recalls, [0, 1]
   double ar = 0;                                  ///< mean of the BOP average recalls computed
@@ -66,9 +66,9 @@ struct Scores {
 struct InstanceResult {
   int scene_id = 0, im_id = 0, obj_id = 0, gt_index = 0;
   float visib_fract = 1.f;
-  double add_m = 0, adds_m = 0, add_s_m = 0;  ///< ADD, ADD-S, ADD(-S)
-  double mssd_m = 0, mspd_px = 0;             ///< MSSD, MSPD (pixels at the image's own width)
-  int add_line = 0, adds_line = 0;            ///< results line of the matched estimate, 0 if none
+  double add_m = 0, adds_m = 0, add_or_adds_m = 0;  ///< ADD, ADD-S, ADD(-S)
+  double mssd_m = 0, mspd_px = 0;                   ///< MSSD, MSPD (pixels at the image's own width)
+  int add_line = 0, adds_line = 0;                  ///< results line of the matched estimate, 0 if none
 };
 
 struct EvalReport {
