@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # perch2 entry point: installs missing Debian packages, configures, builds, runs.
 #   ./run.sh demo [perch2 demo options]   build and run the built-in 3-DoF demo (writes demo_out/overlay.png)
-#   ./run.sh test                         build and run every test (ctest)
+#   ./run.sh test                         build and run every test (ctest: the C++ and the Python suites)
+#   ./run.sh python                       set up .venv with the perch2 Python package (pip install -e .)
 #   ./run.sh bench                        build and run the benchmarks (Release)
 #   ./run.sh cuda                         compile and link the nvcc backend (perch2::cuda); needs nvcc
 #   ./run.sh gpu                          nvcc build of everything; tests and benches include perch2::cuda
@@ -17,6 +18,11 @@ DEPS=(cmake make g++ pkg-config libeigen3-dev libflann-dev liblz4-dev libopencv-
 # toolkit CMake takes Debian's copies.
 SYSTEM_CCCL=(libthrust-dev libcub-dev libcu++-dev)
 JOBS=$(nproc)
+# The Python package's virtual environment and what it needs from PyPI (build: nanobind, scikit-build-core;
+# run: numpy; tests: pytest). PyPI packages go only into it, never into the system Python.
+VENV=${PERCH2_VENV:-.venv}
+PY_REQUIREMENTS=(nanobind scikit-build-core numpy pytest)
+DEPS+=(python3-dev python3-venv)
 # libgomp's default wait policy spins at every barrier; with other work on the cores (ctest -j, a robot's other
 # processes) a descheduled thread then stalls each of the Thrust-OMP backend's many short parallel regions for
 # a whole time slice (measured: 10x slower). Passive waiting gives the cores back (README, "Under load").
@@ -59,6 +65,19 @@ bench_peers() {
   if [ -d "$dir/include" ]; then echo "$PWD/$dir/include"; fi
 }
 
+# Creates $VENV (once) with PY_REQUIREMENTS.
+python_venv() {
+  [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
+  "$VENV/bin/python" -c "import nanobind, scikit_build_core, numpy, pytest" 2>/dev/null || {
+    echo "== installing into $VENV: ${PY_REQUIREMENTS[*]}"
+    "$VENV/bin/python" -m pip install -q "${PY_REQUIREMENTS[@]}"
+  }
+}
+# The CMake options of a build with the Python package (the venv's Python and nanobind).
+python_options() {
+  echo "-DPERCH2_BUILD_PYTHON=ON -DPython_EXECUTABLE=$PWD/$VENV/bin/python"
+}
+
 use_nvcc() {
   command -v nvcc >/dev/null || export PATH=/usr/local/cuda/bin:$PATH
   command -v nvcc >/dev/null || { echo "this command needs nvcc (the CUDA toolkit)" >&2; exit 1; }
@@ -81,13 +100,28 @@ case "$cmd" in
     ;;
   test)
     install_deps
-    build build -DPERCH2_WITH_CUDA=OFF
+    python_venv
+    # shellcheck disable=SC2046
+    build build -DPERCH2_WITH_CUDA=OFF $(python_options)
     ctest --test-dir build --output-on-failure -j"$JOBS" "$@"
+    ;;
+  python)
+    install_deps
+    python_venv
+    echo "== pip install -e . into $VENV (builds the C++ libraries and the extension in build/py-*)"
+    CMAKE_CXX_COMPILER_LAUNCHER=${CMAKE_CXX_COMPILER_LAUNCHER:-$(command -v ccache || true)} \
+      "$VENV/bin/python" -m pip install -q --no-build-isolation -e .
+    "$VENV/bin/python" -c "import perch2; print('perch2', perch2.__version__, 'backends', perch2.backends())"
+    echo "== ready: source $VENV/bin/activate, then import perch2"
     ;;
   bench)
     install_deps
     build build -DPERCH2_WITH_CUDA=OFF -DPERCH2_SMALL_GICP_INCLUDE_DIR="$(bench_peers)"
     for b in build/bench/bench_*; do [ -x "$b" ] && "$b" "$@"; done
+    # The Python call overhead, when the build has the Python package (./run.sh test configures it).
+    if ls build/python/perch2/_perch2*.so >/dev/null 2>&1; then
+      PYTHONPATH=build/python "$VENV/bin/python" bench/bench_python.py
+    fi
     ;;
   cuda)
     install_deps
@@ -125,7 +159,7 @@ case "$cmd" in
       ctest --test-dir build-asan --output-on-failure -j"$JOBS" -E consumer "$@"
     ;;
   *)
-    sed -n '2,11p' "$0"
+    sed -n '2,12p' "$0"
     exit 2
     ;;
 esac

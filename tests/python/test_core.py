@@ -1,0 +1,189 @@
+"""Core types from Python: meshes from arrays, frames, cloud batches (zero-copy views), the errors, the
+settings bound from C++ (defaults, docs, nested settings)."""
+
+import re
+
+import numpy as np
+import pytest
+
+import perch2
+
+
+def box_mesh(size=0.1, name="box"):
+    h = size / 2
+    v = np.array([[x, y, z] for z in (-h, h) for y in (-h, h) for x in (-h, h)], dtype=np.float64)
+    f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                  [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], dtype=np.int64)
+    return v, f
+
+
+def test_errors_are_value_and_os_errors():
+    assert issubclass(perch2.InvalidInput, ValueError)
+    assert issubclass(perch2.FileError, OSError)
+
+
+def test_mesh_from_arrays_like_trimesh_and_open3d():
+    v, f = box_mesh()
+    rgba = np.tile(np.array([[255, 0, 0, 255]], np.uint8), (8, 1))  # trimesh: visual.vertex_colors (n, 4)
+    m = perch2.Mesh(v, f, colors=rgba, name="box")
+    assert m.vertices.dtype == np.float32 and m.vertices.shape == (8, 3)
+    np.testing.assert_allclose(m.vertices, v, rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(m.faces, f)
+    np.testing.assert_array_equal(m.colors, np.tile([255, 0, 0], (8, 1)))
+    m2 = perch2.Mesh(v, f.astype(np.int32), colors=np.full((8, 3), 0.5))  # Open3D: float colours in [0, 1]
+    assert (m2.colors == 128).all()
+    # per-vertex uv (trimesh) become per-corner uv; a texture is needed with them
+    tex = np.zeros((4, 4, 3), np.uint8)
+    m3 = perch2.Mesh(v, f, uv=np.zeros((8, 2)), texture=tex)
+    assert m3.has_texture() and m3.corner_uvs.shape == (12, 3, 2)
+    # views, not copies: the array properties share the mesh's storage
+    assert np.shares_memory(m.vertices, m.vertices)
+    m.vertices[0, 0] = 1.0
+    assert m.vertices[0, 0] == 1.0
+
+
+@pytest.mark.parametrize(
+    "kwargs, fragment",
+    [
+        (dict(vertices=np.zeros((8, 2))), "vertices: must have shape (n, 3)"),
+        (dict(vertices=np.zeros((8, 3), np.complex64)), "vertices: must hold real numbers, got complex64"),
+        (dict(faces=np.array([[0, 1, 9]])), "triangle references vertex 9 of 8"),
+        (dict(faces=np.zeros((3, 4), np.int64)), "faces: must have shape (m, 3)"),
+        (dict(colors=np.zeros((7, 3), np.uint8)), "colors: must have shape (8, 3)"),
+        (dict(colors=np.full((8, 3), 2.0)), "float colours must lie in [0, 1]"),
+        (dict(uv=np.zeros((8, 2))), "has texture coordinates but no texture"),
+        (dict(uv=np.zeros((5, 2)), texture=np.zeros((2, 2, 3), np.uint8)), "uv: must be per vertex"),
+        (dict(texture=np.zeros((2, 2, 3), np.float32)), "texture: must be uint8"),
+        (dict(vertices=np.full((8, 3), np.nan)), "has a non-finite vertex"),
+    ],
+)
+def test_bad_mesh_arrays_raise_invalid_input(kwargs, fragment):
+    v, f = box_mesh()
+    args = dict(vertices=v, faces=f)
+    args.update(kwargs)
+    with pytest.raises(perch2.InvalidInput, match=re.escape(fragment)):
+        perch2.Mesh(**args)
+
+
+def test_load_mesh_missing_file_is_file_error(tmp_path):
+    with pytest.raises(perch2.FileError, match="nothing.ply"):
+        perch2.load_mesh(str(tmp_path / "nothing.ply"))
+    with pytest.raises(OSError):
+        perch2.load_mesh(str(tmp_path / "nothing.ply"))
+
+
+def test_load_mesh_scale_and_save_round_trip(tmp_path):
+    v, f = box_mesh()
+    perch2.save_ply(str(tmp_path / "box.ply"), perch2.Mesh(v * 1000, f, name="box"))  # millimetres
+    m = perch2.load_mesh(str(tmp_path / "box.ply"), scale=0.001)
+    np.testing.assert_allclose(m.vertices, v, atol=1e-6)
+    assert m.name == "box"
+    with pytest.raises(perch2.InvalidInput, match="scale"):
+        perch2.load_mesh(str(tmp_path / "box.ply"), scale=0.0)
+
+
+K = np.array([[500.0, 0, 32], [0, 500, 24], [0, 0, 1]])
+
+
+def test_frame_views_share_the_frames_storage():
+    depth = np.full((48, 64), 0.8, np.float32)
+    rgb = np.zeros((48, 64, 3), np.uint8)
+    f = perch2.RgbdFrame(depth, rgb, K)
+    assert f.camera.width == 64 and f.camera.height == 48
+    a, b = f.depth_m, f.depth_m
+    assert np.shares_memory(a, b) and a.dtype == np.float32
+    a[0, 0] = 2.0
+    assert f.depth_m[0, 0] == 2.0  # a view of the C++ frame, not a copy
+    assert not np.shares_memory(f.depth_m, depth)  # numpy -> C++ images is one copy (documented)
+    assert np.shares_memory(f.rgb, f.rgb)
+    # uint16 depth with a scale
+    f16 = perch2.RgbdFrame((depth * 1000).astype(np.uint16), None, K, depth_scale_m=0.001)
+    np.testing.assert_allclose(f16.depth_m, 0.8, atol=1e-6)
+    assert f16.rgb is None
+    # strided input is copied correctly
+    big = np.zeros((96, 128), np.float32)
+    big[::2, ::2] = np.arange(48 * 64, dtype=np.float32).reshape(48, 64) / 1e4
+    fs = perch2.RgbdFrame(big[::2, ::2], None, K)
+    np.testing.assert_array_equal(fs.depth_m, big[::2, ::2])
+
+
+@pytest.mark.parametrize(
+    "depth, rgb, Km, scale, fragment",
+    [
+        (np.zeros((48, 64), np.float64), None, K, None, "depth: must be float32 (metres) or uint16"),
+        (np.zeros((48, 64, 1), np.float32), None, K, None, "depth: must be an H x W array"),
+        (np.zeros((48, 64), np.uint16), None, K, None, "depth: is uint16: pass depth_scale_m"),
+        (np.zeros((48, 64), np.float32), None, K, 0.001, "depth_scale_m: applies to uint16 depth only"),
+        (np.full((48, 64), np.nan, np.float32), None, K, None, "depth: depth at pixel (0, 0) is nan"),
+        (np.full((48, 64), -1, np.float32), None, K, None, "depth must be finite and >= 0"),
+        (np.zeros((48, 64), np.float32), np.zeros((48, 64, 3), np.float32), K, None, "rgb: must be uint8"),
+        (np.zeros((48, 64), np.float32), np.zeros((48, 64), np.uint8), K, None, "rgb: must be an H x W x 3"),
+        (np.zeros((48, 64), np.float32), np.zeros((40, 64, 3), np.uint8), K, None, "rgb: is 64 x 40"),
+        (np.zeros((48, 64), np.float32), None, np.eye(4), None, "K"),
+        (np.zeros((48, 64), np.float32), None, np.diag([0.0, 500, 1]), None, "K: focal lengths must be positive"),
+        (np.zeros((48, 64), np.float32), None, perch2.Intrinsics(500, 500, 32, 24, 640, 480), None,
+         "but K is for 640 x 480"),
+        ([[0.5, 0.5]], None, K, None, "depth: must be float32"),  # a list of Python floats is float64
+        ("depth.png", None, K, None, "depth"),
+    ],
+)
+def test_bad_frames_raise_invalid_input_naming_the_argument(depth, rgb, Km, scale, fragment):
+    with pytest.raises(perch2.InvalidInput, match=re.escape(fragment)):
+        perch2.RgbdFrame(depth, rgb, Km, depth_scale_m=scale)
+
+
+def test_cloud_batch_arrays_are_views():
+    pts = np.random.default_rng(0).normal(size=(10, 3))
+    c = perch2.CloudBatch(pts, offsets=[0, 4, 10])
+    assert len(c) == 10 and c.num_clouds() == 2 and c.cloud_size(1) == 6
+    np.testing.assert_array_equal(c.cloud, [0] * 4 + [1] * 6)
+    np.testing.assert_allclose(c.points, pts, atol=1e-6)
+    x = c.x
+    assert np.shares_memory(x, c.x)  # both views of the C++ vector
+    x[0] = 42.0
+    assert c.points[0, 0] == 42.0
+    del c
+    assert x[0] == 42.0  # the view keeps the batch alive
+    with pytest.raises(perch2.InvalidInput, match="offsets must start at 0 and end at the point count"):
+        perch2.CloudBatch(pts, offsets=[0, 4])
+    with pytest.raises(perch2.InvalidInput, match="offsets must not decrease"):
+        perch2.CloudBatch(pts, offsets=[0, 6, 4, 10])
+    with pytest.raises(perch2.InvalidInput, match="rgb: must have 10 entries"):
+        perch2.CloudBatch(pts, rgb=[0, 1])
+
+
+def test_unknown_and_unbuilt_backends_raise_invalid_input():
+    v, f = box_mesh()
+    mesh = perch2.Mesh(v, f)
+    with pytest.raises(perch2.InvalidInput, match="backend: unknown backend 'gpu'"):
+        perch2.Renderer([mesh], backend="gpu")
+    if "cuda" not in perch2.backends():
+        with pytest.raises(perch2.InvalidInput, match="perch2 was built without CUDA"):
+            perch2.SixDofEstimator([mesh], backend="cuda")
+    assert {"cpu", "thrust_omp"} <= set(perch2.backends())
+
+
+def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
+    s = perch2.SixDofSettings()
+    assert s.render.stride == 8 and s.gicp.icp_warmup_iterations == 8  # the C++ lambdas' values
+    assert s.local.cost.color_rule == perch2.ColorRule.Nearest
+    s.local.cost.delta_m = 0.02
+    assert s.local.cost.delta_m == pytest.approx(0.02)  # nested settings are references, not copies
+    s.gicp.lm.lambda_up = 7.0
+    assert s.gicp.lm.lambda_up == 7.0
+    t = perch2.TabletopSettings()
+    assert t.cost.normalization == perch2.Normalization.Fractions and t.xy_step_m == pytest.approx(0.08)
+    t.workspace_xy_m = (-0.5, -0.5, 0.5, 0.5)
+    assert t.workspace_xy_m == pytest.approx((-0.5, -0.5, 0.5, 0.5))
+    t.workspace_xy_m = None
+    assert t.workspace_xy_m is None
+    t.icp.up_cam = [0.0, 0.0, 1.0]
+    np.testing.assert_array_equal(t.icp.up_cam, [0, 0, 1])
+
+
+def test_docstrings_are_the_cpp_comments():
+    assert "grid step in x and y on the table, metres" in perch2.TabletopSettings.xy_step_m.__doc__
+    assert "Fewer acceptable, non-overlapping poses" in perch2.TabletopSettings.strict_instances.__doc__
+    assert "6-DoF PERCH 2.0" in perch2.SixDofEstimator.__doc__
+    assert "ADD(-S)" in perch2.Scores.auc_add_or_adds.__doc__
+    assert "Grid" in dir(perch2.KnnMethod) and "uniform spatial grid" in perch2.KnnMethod.Grid.__doc__
