@@ -1,15 +1,14 @@
-// perch2 estimate: 3-DoF tabletop pose estimation over a BOP dataset, written as a BOP results CSV.
-#include <chrono>
+// perch2 estimate: 3-DoF or 6-DoF pose estimation over a BOP dataset (perch2::dataset::BopRunner), written
+// as a BOP results CSV.
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
-#include <set>
 #include <string>
 
+#include "cli_common.hpp"
 #include "commands.hpp"
-#include "estimate_6dof.hpp"
+#include "perch2/dataset/runner.hpp"
 #include "perch2/io/image_io.hpp"
-#include "tabletop_bop.hpp"
 
 namespace {
 
@@ -36,6 +35,18 @@ constexpr const char* kUsage =
 int usage_error(const std::string& message) {
   std::cerr << "perch2 estimate: " << message << "\n\n" << kUsage;
   return 2;
+}
+
+/// DIR/SCENE_IM.png: the estimated models (poses found) drawn over the image.
+void write_overlay(const dataset::BopRunner& runner, const dataset::BopImage& image,
+                   const dataset::ImageResult& r, const std::string& dir) {
+  std::vector<int> model_of_pose;
+  std::vector<Pose> poses;
+  for (std::size_t k = 0; k < r.rows.size(); ++k)
+    if (r.row_found[k]) model_of_pose.push_back(r.row_models[k]), poses.push_back(r.rows[k].T_cam_obj);
+  io::save_color_image(
+      dir + "/" + dataset::bop_id(r.scene_id) + "_" + dataset::bop_id(r.im_id) + ".png",
+      cli::draw_overlay(image.frame.rgb, image.frame.camera, runner.meshes(), model_of_pose, poses));
 }
 
 std::pair<int, int> parse_scene_range(const std::string& s) {
@@ -85,56 +96,49 @@ int estimate_command(int argc, char** argv) {
   if (dataset_dir.empty() || out.empty()) return usage_error("--dataset and --out are required");
   if (!std::filesystem::is_directory(dataset_dir))
     throw FileError(dataset_dir, "is not a directory (expected a BOP dataset root)");
-  const SearchVariant v = cli::parse_variant(variant);
-  const cli::BackendKind b = cli::parse_backend(backend);
+  dataset::RunOptions run;
+  run.mode = dataset::parse_mode(mode);
+  run.variant = dataset::parse_variant(variant);
+  run.backend = dataset::parse_backend(backend);
+  run.masks = masks;
+  run.box = box == "full" ? BoxKind::Full : BoxKind::Visible;
   const auto [first, last] = scenes.empty() ? std::pair<int, int>{0, 1 << 30} : parse_scene_range(scenes);
 
   const dataset::BopDataset data(dataset_dir, options);
   if (data.targets_path().empty())
     throw FileError(dataset_dir, "has no targets file (test_targets_bop19.json or _bop24.json)");
-  const auto images = cli::targets_by_image(data, first, last);
-  if (images.empty())
+  if (dataset::targets_by_image(data.targets(), first, last).empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
-  if (mode == "6dof") return cli::estimate_6dof(data, images, {masks, box == "full", out, overlays}, b);
-  std::set<int> ids;
-  for (const auto& [key, targets] : images)
-    for (const auto& t : targets) ids.insert(t.obj_id);
-  const cli::BopTabletop estimator(data, {ids.begin(), ids.end()}, v, b);
+  const dataset::BopRunner runner(data, run);
+  const auto images = runner.images(first, last);
   if (!overlays.empty()) std::filesystem::create_directories(overlays);
   dataset::save_results_csv(out, {});  // fail early if unwritable; header only
 
-  std::fprintf(stderr, "perch2 estimate: %zu images, %zu objects, variant %s, backend %s\n", images.size(),
-               ids.size(), cli::variant_name(v), cli::backend_name(b));
+  std::fprintf(stderr, "perch2 estimate: %zu images, %zu objects, %s\n", images.size(),
+               runner.obj_ids().size(), runner.describe().c_str());
   cli::StageTimes times;
   std::vector<dataset::PoseEstimate> rows;
-  int done = 0, missing = 0, requested = 0;
+  int done = 0, missing = 0, unusable = 0, requested = 0;
   double seconds = 0;
-  dataset::ImageLoadOptions load;
-  load.masks_visib = false;
-  for (const auto& [key, targets] : images) {
-    const dataset::BopImage image = data.load_image(key.first, key.second, load);
-    const cli::ImageEstimate e = estimator.estimate(image, targets);
-    times.add(e.result.timings);
-    rows.insert(rows.end(), e.rows.begin(), e.rows.end());
-    for (const auto& t : targets) requested += t.inst_count;
-    for (const auto& m : e.missing) missing += m.second;
-    seconds += e.seconds;
-    if (!overlays.empty()) {
-      std::vector<int> model_of_pose;
-      std::vector<Pose> poses;
-      for (const auto& p : e.result.poses) model_of_pose.push_back(p.model), poses.push_back(p.T_cam_obj);
-      io::save_color_image(
-          overlays + "/" + dataset::bop_id(key.first) + "_" + dataset::bop_id(key.second) + ".png",
-          cli::draw_overlay(image.frame.rgb, image.frame.camera, estimator.meshes(), model_of_pose, poses));
-    }
+  for (const auto& [scene_id, im_id] : images) {
+    const dataset::BopImage image = runner.load_image(scene_id, im_id);
+    const dataset::ImageResult r = runner.estimate(image);
+    times.add(r.stages);
+    rows.insert(rows.end(), r.rows.begin(), r.rows.end());
+    requested += r.requested, missing += r.missing, unusable += r.unusable;
+    seconds += r.seconds;
+    if (!overlays.empty()) write_overlay(runner, image, r, overlays);
     ++done;
-    cli::print_progress(stderr, done, int(images.size()), seconds / done, e.seconds);
+    cli::print_progress(stderr, done, int(images.size()), seconds / done, r.seconds);
   }
   dataset::save_results_csv(out, rows);
-  std::printf("perch2 estimate: %zu poses for %d requested instances (%d not found) in %d images -> %s\n",
-              rows.size(), requested, missing, done, out.c_str());
-  std::printf("per-stage wall-clock times (%s, %s):\n", cli::variant_name(v), cli::backend_name(b));
+  std::printf("perch2 estimate: %zu poses for %d requested instances in %d images -> %s\n", rows.size(),
+              requested, done, out.c_str());
+  if (missing > 0) std::printf("  %d instance(s) not found\n", missing);
+  if (unusable > 0)
+    std::printf("  %d instance(s) skipped: too few valid depth readings inside the mask\n", unusable);
+  std::printf("per-stage wall-clock times (%s):\n", runner.describe().c_str());
   times.print(stdout);
   if (!overlays.empty()) std::printf("overlays in %s/\n", overlays.c_str());
   return 0;

@@ -20,6 +20,15 @@ std::string bop_id(int id) {
   return buf;
 }
 
+std::map<std::pair<int, int>, std::vector<Target>> targets_by_image(const std::vector<Target>& targets,
+                                                                    int first_scene, int last_scene) {
+  std::map<std::pair<int, int>, std::vector<Target>> out;
+  for (const auto& t : targets)
+    if (t.scene_id >= first_scene && t.scene_id <= last_scene && t.inst_count > 0)
+      out[{t.scene_id, t.im_id}].push_back(t);
+  return out;
+}
+
 namespace {
 
 std::string join(const std::string& a, const std::string& b) {

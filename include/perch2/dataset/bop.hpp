@@ -24,6 +24,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "perch2/core/camera.hpp"
@@ -140,6 +141,12 @@ class BopDataset {
   std::map<int, std::map<int, ImageInfo>> scenes_;
   std::vector<Target> targets_;
 };
+
+/// Targets grouped by image, (scene_id, im_id) ascending; targets with inst_count 0 and scenes outside
+/// [first_scene, last_scene] are dropped.
+std::map<std::pair<int, int>, std::vector<Target>> targets_by_image(const std::vector<Target>& targets,
+                                                                    int first_scene = 0,
+                                                                    int last_scene = 1 << 30);
 
 /// Zero-padded 6-digit id, as BOP names folders and files ("000042").
 std::string bop_id(int id);
