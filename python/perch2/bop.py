@@ -4,26 +4,27 @@ per-dataset estimation loops of `perch2 estimate` (same models, settings and row
     ds = perch2.bop.Dataset("/data/lm")
     for image in ds.images():            # nothing is read until a pixel attribute is used
         depth_m, rgb = image.depth_m, image.rgb
-    rows = perch2.bop.estimate_6dof(ds, masks="detections.json")   # what `perch2 estimate --mode 6dof` writes
+    rows = perch2.bop.estimate_6dof(ds, masks="detections.json")   # the rows `perch2 estimate --mode 6dof` writes
     perch2.bop.save_results_csv("results.csv", rows)
 
-Everything here calls the C++ library (perch2._perch2); only the loops over images are Python.
+Everything here calls the C++ library (perch2._perch2, BopRunner for the runs); only the loops over images
+are Python.
 """
-
-import time
-
-import numpy as np
 
 from ._perch2 import (  # noqa: F401  (the C++ dataset layer, re-exported)
     BopDataset,
     BopImage,
     BopInstances,
+    BopRunner,
     BoxKind,
     Detection,
+    ImageError,
     ImageInfo,
+    ImageResult,
     ModelInfo,
     PoseEstimate,
     Rle,
+    RunOptions,
     SixDofEstimator,
     TabletopEstimator,
     TabletopModel,
@@ -44,6 +45,8 @@ from ._perch2 import (  # noqa: F401  (the C++ dataset layer, re-exported)
     save_detections,
     save_results_csv,
     sixdof_model,
+    symmetric_about_z,
+    tabletop_model,
     tabletop_variant,
     usable_instances,
 )
@@ -138,75 +141,38 @@ def _bop(dataset):
     return dataset if isinstance(dataset, Dataset) else Dataset(dataset)
 
 
-def _target_obj_ids(images):
-    return sorted({t.obj_id for targets in images.values() for t in targets})
-
-
-def _symmetric_about_z(info):
-    # The 3-DoF CLI's rule (examples/cli/tabletop_bop.cpp, moving into the library with issue 20): a
-    # continuous symmetry about the model's z axis through its origin means one yaw per position.
-    for s in info.symmetries_continuous:
-        a = np.asarray(s.axis, dtype=np.float32)
-        a = a / np.float32(np.linalg.norm(a))
-        if abs(abs(a[2]) - np.float32(1)) < np.float32(1e-3) and np.linalg.norm(
-            np.asarray(s.offset_m, dtype=np.float32)[:2]
-        ) < np.float32(1e-3):
-            return True
-    return False
-
-
-def estimate_3dof(dataset, variant="perch2-c", backend="thrust_omp", settings=None, scenes=None, progress=None):
-    """3-DoF estimation of every target of a BOP dataset, as `perch2 estimate --mode 3dof`: the target
-    objects' models (z up, one yaw when symmetric about z), the variant's settings with strict_instances off,
-    the table frame from scene_camera.json when given. Returns the BOP rows (score = 1 / (1 + cost), time =
-    seconds of the image's estimate)."""
+def estimate(dataset, options, scenes=None, progress=None, errors=None):
+    """Every target image of a BOP dataset through perch2.BopRunner (what `perch2 estimate` runs): the
+    models loaded and the estimator built once, one image at a time. Returns the BOP rows. An image that
+    cannot be estimated (a bad file, a malformed entry) raises perch2.ImageError, or, with `errors` a list,
+    is appended to it and skipped. progress(done, total), if given, is called after each image."""
     ds = _bop(dataset)
-    images = ds.targets_by_image(*(scenes or (0, 1 << 30)))
-    ids = _target_obj_ids(images)
-    models = [TabletopModel(ds.load_model(i), _symmetric_about_z(ds.model_info(i))) for i in ids]
-    s = tabletop_variant(variant, settings)
-    s.strict_instances = False  # as the CLI: one hard image must not lose the other poses of a run
-    est = TabletopEstimator(models, backend=backend, settings=s)
+    runner = BopRunner(ds.bop, options)
+    images = runner.images(*(scenes or (0, 1 << 30)))
     rows = []
-    for n, ((scene_id, im_id), targets) in enumerate(images.items()):
-        image = ds.load_image(scene_id, im_id, masks_visib=False)
-        request = [(ids.index(t.obj_id), t.inst_count) for t in targets]
-        t0 = time.perf_counter()
-        result = est.estimate(image.frame, request, image.info.T_cam_world)
-        seconds = time.perf_counter() - t0
-        for p in result.poses:
-            score = 1.0 / (1.0 + max(0.0, p.score))
-            rows.append(PoseEstimate(scene_id, im_id, ids[p.model], score, p.T_cam_obj, seconds))
+    for n, (scene_id, im_id) in enumerate(images):
+        try:
+            rows += runner.estimate(scene_id, im_id).rows
+        except ImageError as e:
+            if errors is None:
+                raise
+            errors.append(e)
         if progress:
             progress(n + 1, len(images))
     return rows
 
 
-def estimate_6dof(dataset, masks="gt", box="full", backend="thrust_omp", settings=None, scenes=None, progress=None):
+def estimate_3dof(dataset, variant="perch2c", backend="thrust_omp", settings=None, **kw):
+    """3-DoF estimation of every target of a BOP dataset, as `perch2 estimate --mode 3dof`: the target
+    objects' models (z up, one yaw when symmetric about z), the variant's settings (over `settings`) with
+    strict_instances off, the table frame from scene_camera.json when given. Returns the BOP rows (score =
+    1 / (1 + cost), time = seconds of the image's estimate). Other keywords as estimate()."""
+    return estimate(dataset, RunOptions("3dof", backend=backend, variant=variant, tabletop=settings), **kw)
+
+
+def estimate_6dof(dataset, masks="gt", box="full", backend="thrust_omp", settings=None, **kw):
     """6-DoF estimation of every target instance of a BOP dataset, as `perch2 estimate --mode 6dof`: instances
     from the ground-truth visible masks (masks="gt"; box "full" or "visible") or a detection file (COCO RLE),
-    the targets kept, instances without enough depth skipped. Returns the BOP rows (score in [0, 1])."""
-    ds = _bop(dataset)
-    images = ds.targets_by_image(*(scenes or (0, 1 << 30)))
-    ids = _target_obj_ids(images)
-    model_of = {obj_id: k for k, obj_id in enumerate(ids)}
-    est = SixDofEstimator([sixdof_model(ds.load_model(i), ds.model_info(i)) for i in ids], backend=backend,
-                          settings=settings)
-    from_gt = masks == "gt"
-    if not from_gt:
-        detections = load_detections(str(masks))
-        detections_of = detections_by_image(detections)
-    kind = BoxKind.Full if box == "full" else BoxKind.Visible
-    rows = []
-    for n, ((scene_id, im_id), targets) in enumerate(images.items()):
-        image = ds.load_image(scene_id, im_id, masks_visib=from_gt)
-        if from_gt:
-            found = bop_instances_from_gt(image, model_of, kind)
-        else:
-            found = bop_instances_from_detections(image, detections, detections_of.get((scene_id, im_id), []), model_of)
-        instances = usable_instances(only_targets(found, targets), image.frame, est.settings.observed)
-        image_rows, _ = estimate_bop_image(est, image, instances)
-        rows += image_rows
-        if progress:
-            progress(n + 1, len(images))
-    return rows
+    the targets kept, instances without enough depth skipped. Returns the BOP rows (score in [0, 1]). Other
+    keywords as estimate()."""
+    return estimate(dataset, RunOptions("6dof", backend=backend, masks=str(masks), box=box, sixdof=settings), **kw)

@@ -227,6 +227,7 @@ void bind_core(nb::module_& m);        // errors, camera, meshes, frames, clouds
 void bind_stages(nb::module_& m);      // Renderer, KnnIndex, Registration, Cost (stages.cpp)
 void bind_dataset(nb::module_& m);     // BOP reader, detections, results CSV (dataset.cpp)
 void bind_estimators(nb::module_& m);  // TabletopEstimator, SixDofEstimator, BOP 6-DoF glue (estimators.cpp)
+void bind_runner(nb::module_& m);      // BopRunner: per-image BOP estimation, either mode (runner.cpp)
 void bind_eval(nb::module_& m);        // evaluation (eval.cpp)
 
 }  // namespace perch2_py

@@ -4,6 +4,7 @@
 #include "perch2/search/sixdof.hpp"
 #include "perch2/search/sixdof_bop.hpp"
 #include "perch2/search/tabletop.hpp"
+#include "perch2/search/tabletop_bop.hpp"
 
 namespace perch2_py {
 
@@ -596,6 +597,24 @@ void bind_estimators(nb::module_& m) {
   m.def("only_targets", &only_targets, nb::arg("instances"), nb::arg("targets"), doc("only_targets"));
   m.def("usable_instances", &usable_instances, nb::arg("instances"), nb::arg("frame"), nb::arg("observed"),
         nb::arg("min_points") = 10, doc("usable_instances"));
+  m.def("symmetric_about_z", &symmetric_about_z, nb::arg("info"), doc("symmetric_about_z"));
+  m.def("tabletop_model", &tabletop_model, nb::arg("mesh"), nb::arg("info"), doc("tabletop_model"));
+  m.def(
+      "estimate_bop_image",
+      [](const PyTabletop& e, const dataset::BopImage& image, const std::vector<dataset::Target>& targets,
+         const std::map<int, int>& model_of_obj_id) {
+        return e.call([&](const auto& x) {
+          TabletopResult r;
+          std::vector<dataset::PoseEstimate> rows =
+              estimate_bop_image(x, image, targets, model_of_obj_id, &r);
+          return std::make_pair(std::move(rows), std::move(r));
+        });
+      },
+      nb::arg("estimator"), nb::arg("image"), nb::arg("targets"), nb::arg("model_of_obj_id"),
+      "3-DoF (perch2/search/tabletop_bop.hpp): estimates the targets of one image with the table frame of\n"
+      "scene_camera.json when given; one BOP row per pose (score = 1 / (1 + selection score)). Returns "
+      "(rows, "
+      "result).");
   m.def(
       "estimate_bop_image",
       [](const PySixDof& e, const dataset::BopImage& image, const BopInstances& in) {

@@ -8,5 +8,6 @@ NB_MODULE(_perch2, m) {
   perch2_py::bind_stages(m);
   perch2_py::bind_dataset(m);
   perch2_py::bind_estimators(m);
+  perch2_py::bind_runner(m);
   perch2_py::bind_eval(m);
 }

@@ -20,18 +20,51 @@ def rows_without_time(path):
     return [r[:6] for r in rows[1:]]
 
 
+def manual_3dof(root):
+    """The 3-DoF run with the estimator's own binding (not BopRunner): models, settings, per-image glue."""
+    ds = perch2.bop.Dataset(str(root))
+    images = ds.targets_by_image()
+    ids = sorted({t.obj_id for ts in images.values() for t in ts})
+    settings = perch2.tabletop_variant("perch2-c")
+    settings.strict_instances = False
+    est = perch2.TabletopEstimator([perch2.tabletop_model(ds.load_model(i), ds.model_info(i)) for i in ids],
+                                   settings=settings)
+    model_of = {obj_id: k for k, obj_id in enumerate(ids)}
+    rows = []
+    for (scene_id, im_id), targets in images.items():
+        image = ds.load_image(scene_id, im_id, masks_visib=False)
+        rows += perch2.estimate_bop_image(est, image, targets, model_of)[0]
+    return rows
+
+
+def manual_6dof(root):
+    """The 6-DoF run (ground-truth masks) with SixDofEstimator's binding and the library's BOP glue."""
+    ds = perch2.bop.Dataset(str(root))
+    images = ds.targets_by_image()
+    ids = sorted({t.obj_id for ts in images.values() for t in ts})
+    est = perch2.SixDofEstimator([perch2.sixdof_model(ds.load_model(i), ds.model_info(i)) for i in ids])
+    model_of = {obj_id: k for k, obj_id in enumerate(ids)}
+    rows = []
+    for (scene_id, im_id), targets in images.items():
+        image = ds.load_image(scene_id, im_id)
+        found = perch2.bop_instances_from_gt(image, model_of, perch2.BoxKind.Full)
+        instances = perch2.usable_instances(perch2.only_targets(found, targets), image.frame, est.settings.observed)
+        rows += perch2.estimate_bop_image(est, image, instances)[0]
+    return rows
+
+
 def test_3dof_python_gives_the_cli_poses(cli, dataset_3dof, tmp_out):
     run(cli, "estimate", "--mode", "3dof", "--dataset", dataset_3dof, "--out", tmp_out / "cli.csv")
-    rows = perch2.bop.estimate_3dof(str(dataset_3dof))
-    perch2.bop.save_results_csv(str(tmp_out / "py.csv"), rows)
     expect = rows_without_time(tmp_out / "cli.csv")
     assert len(expect) >= 4
-    assert rows_without_time(tmp_out / "py.csv") == expect
+    for name, rows in (("runner", perch2.bop.estimate_3dof(str(dataset_3dof))), ("estimator", manual_3dof(dataset_3dof))):
+        perch2.bop.save_results_csv(str(tmp_out / f"{name}.csv"), rows)
+        assert rows_without_time(tmp_out / f"{name}.csv") == expect, name
 
 
 def target_detections(dataset, path):
     """The generated detections of target objects only, written with perch2.bop.save_detections (the CLI
-    stops at a detection of an object it has no model of)."""
+    cannot estimate an image with a detection of an object it has no model of)."""
     ids = {t.obj_id for t in perch2.bop.Dataset(str(dataset)).targets()}
     dets = [d for d in perch2.bop.load_detections(str(dataset / "detections_synth.json")) if d.category_id in ids]
     perch2.bop.save_detections(str(path), dets)
@@ -42,11 +75,30 @@ def target_detections(dataset, path):
 def test_6dof_python_gives_the_cli_poses(cli, dataset_6dof, tmp_out, masks):
     source = "gt" if masks == "gt" else target_detections(dataset_6dof, tmp_out / "detections.json")
     run(cli, "estimate", "--mode", "6dof", "--dataset", dataset_6dof, "--masks", source, "--out", tmp_out / "cli.csv")
-    rows = perch2.bop.estimate_6dof(str(dataset_6dof), masks=source)
-    perch2.bop.save_results_csv(str(tmp_out / "py.csv"), rows)
     expect = rows_without_time(tmp_out / "cli.csv")
     assert len(expect) >= 3
-    assert rows_without_time(tmp_out / "py.csv") == expect
+    runs = [("runner", perch2.bop.estimate_6dof(str(dataset_6dof), masks=source))]
+    if masks == "gt":
+        runs.append(("estimator", manual_6dof(dataset_6dof)))
+    for name, rows in runs:
+        perch2.bop.save_results_csv(str(tmp_out / f"{name}.csv"), rows)
+        assert rows_without_time(tmp_out / f"{name}.csv") == expect, name
+
+
+def test_runner_reports_a_bad_image_and_goes_on(dataset_6dof, tmp_out):
+    import shutil
+
+    root = tmp_out / "broken"
+    shutil.copytree(dataset_6dof, root)
+    depth = sorted((root / "test" / "000001" / "depth").glob("*.png"))[0]
+    depth.write_bytes(depth.read_bytes()[:100])  # truncated PNG
+    errors = []
+    rows = perch2.bop.estimate_6dof(str(root), errors=errors)
+    assert len(errors) == 1 and isinstance(errors[0], perch2.ImageError)
+    assert (errors[0].scene_id, errors[0].im_id) == (1, 0) and depth.name in errors[0].reason
+    assert rows and all(r.im_id == 1 for r in rows)
+    with pytest.raises(perch2.ImageError, match="scene 1 image 0"):
+        perch2.bop.estimate_6dof(str(root))
 
 
 def gt_instances(ds, scene_id, im_id):
