@@ -1,5 +1,8 @@
 // BOP datasets: the reader (images as numpy views of the loaded image), detection files (COCO RLE, both
 // forms) and the results CSV.
+#include <nanobind/stl/map.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/pair.h>
 #include "common.hpp"
 #include "perch2/dataset/bop.hpp"
 #include "perch2/dataset/detections.hpp"
@@ -131,6 +134,13 @@ void bind_dataset(nb::module_& m) {
       .def("has_image", &BopDataset::has_image, nb::arg("scene_id"), nb::arg("im_id"))
       .def("targets_path", &BopDataset::targets_path, doc("BopDataset.targets_path"))
       .def("targets", &BopDataset::targets, "the targets (copies)")
+      .def("target_images", &BopDataset::target_images)
+      .def(
+          "read_image_files",
+          [](const BopDataset& d, int scene_id, int im_id, const ImageLoadOptions& o) {
+            return d.read_image_files(scene_id, im_id, o);
+          },
+          nb::arg("scene_id"), nb::arg("im_id"), nb::arg("options"), nb::call_guard<nb::gil_scoped_release>())
       .def(
           "load_image",
           [](const BopDataset& d, int scene_id, int im_id, bool rgb, bool depth, bool masks_visib,
@@ -230,8 +240,46 @@ void bind_dataset(nb::module_& m) {
   PERCH2_RO(pe, PoseEstimate, line);
   m.def("save_results_csv", &save_results_csv, nb::arg("path"), nb::arg("estimates"),
         nb::arg("append") = false, doc("save_results_csv"));
-  m.def("load_results_csv", &load_results_csv, nb::arg("path"), nb::call_guard<nb::gil_scoped_release>(),
-        doc("load_results_csv"));
+  m.def(
+      "load_results_csv",
+      [](const std::string& path, bool drop_torn_last_line) {
+        return load_results_csv(path, drop_torn_last_line);
+      },
+      nb::arg("path"), nb::arg("drop_torn_last_line") = false, nb::call_guard<nb::gil_scoped_release>(),
+      doc("load_results_csv"));
+  m.def("completed_images", &completed_images, nb::arg("path"), doc("completed_images"));
+  nb::class_<ResultsWriter>(m, "ResultsWriter", doc("ResultsWriter"))
+      .def(
+          "__init__",
+          [](ResultsWriter* self, std::string path, bool resume, bool fsync) {
+            ResultsWriter::Options o;
+            o.resume = resume, o.fsync = fsync;
+            new (self) ResultsWriter(std::move(path), o);
+          },
+          nb::arg("path"), nb::arg("resume") = false, nb::arg("fsync") = false)
+      .def("write_image", &ResultsWriter::write_image, nb::arg("scene_id"), nb::arg("im_id"), nb::arg("rows"))
+      .def("is_done", &ResultsWriter::is_done, nb::arg("scene_id"), nb::arg("im_id"))
+      .def("done", &ResultsWriter::done)
+      .def("resume_notes", &ResultsWriter::resume_notes);
+
+  nb::class_<FileBytes>(m, "FileBytes")
+      .def(nb::init<>())
+      .def(
+          "__init__",
+          [](FileBytes* self, std::string path, nb::bytes data) {
+            new (self) FileBytes{std::move(path), std::string(data.c_str(), data.size())};
+          },
+          nb::arg("path"), nb::arg("bytes"))
+      .def_rw("path", &FileBytes::path)
+      .def_prop_ro("bytes", [](const FileBytes& f) { return nb::bytes(f.bytes.data(), f.bytes.size()); });
+  nb::class_<ImageFiles>(m, "ImageFiles")
+      .def(nb::init<>())
+      .def_rw("rgb", &ImageFiles::rgb)
+      .def_rw("depth", &ImageFiles::depth)
+      .def_rw("masks_visib", &ImageFiles::masks_visib)
+      .def_rw("masks", &ImageFiles::masks);
+  m.def("decode_image", &decode_image, nb::arg("info"), nb::arg("files"),
+        nb::call_guard<nb::gil_scoped_release>());
 }
 
 }  // namespace perch2_py
