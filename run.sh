@@ -22,6 +22,8 @@ JOBS=$(nproc)
 # run: numpy; tests: pytest). PyPI packages go only into it, never into the system Python.
 VENV=${PERCH2_VENV:-.venv}
 PY_REQUIREMENTS=(nanobind scikit-build-core numpy pytest)
+# Ray, the optional dependency of perch2.distributed, for its tests (they skip, saying so, without it).
+PY_TEST_REQUIREMENTS=(ray)
 DEPS+=(python3-dev python3-venv)
 # libgomp's default wait policy spins at every barrier; with other work on the cores (ctest -j, a robot's other
 # processes) a descheduled thread then stalls each of the Thrust-OMP backend's many short parallel regions for
@@ -73,6 +75,14 @@ python_venv() {
     "$VENV/bin/python" -m pip install -q "${PY_REQUIREMENTS[@]}"
   }
 }
+# Adds PY_TEST_REQUIREMENTS to $VENV (once).
+python_test_venv() {
+  python_venv
+  "$VENV/bin/python" -c "import ray" 2>/dev/null || {
+    echo "== installing into $VENV: ${PY_TEST_REQUIREMENTS[*]}"
+    "$VENV/bin/python" -m pip install -q "${PY_TEST_REQUIREMENTS[@]}"
+  }
+}
 # The CMake options of a build with the Python package (the venv's Python and nanobind).
 python_options() {
   echo "-DPERCH2_BUILD_PYTHON=ON -DPython_EXECUTABLE=$PWD/$VENV/bin/python"
@@ -100,7 +110,7 @@ case "$cmd" in
     ;;
   test)
     install_deps
-    python_venv
+    python_test_venv
     # shellcheck disable=SC2046
     build build -DPERCH2_WITH_CUDA=OFF $(python_options)
     ctest --test-dir build --output-on-failure -j"$JOBS" "$@"

@@ -33,6 +33,7 @@ import argparse
 import dataclasses
 import os
 import pathlib
+import resource
 import signal
 import sys
 import tempfile
@@ -191,6 +192,7 @@ class Worker:
             out.update(rows=_rows_to_wire(r.rows), stages=list(r.stages), seconds=r.seconds,
                        requested=r.requested, missing=r.missing, unusable=r.unusable)
         out["wall"] = time.perf_counter() - start
+        out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         return out
 
 
@@ -205,6 +207,7 @@ class RunSummary:
     skipped: Dict[ImageKey, str] = dataclasses.field(default_factory=dict)  #: bad images: why
     failed: Dict[ImageKey, str] = dataclasses.field(default_factory=dict)  #: killed max_attempts workers
     per_worker: Dict[int, int] = dataclasses.field(default_factory=dict)  #: images done per worker
+    peak_rss_mib: Dict[int, float] = dataclasses.field(default_factory=dict)  #: per worker process, MiB
     stages: Dict[str, float] = dataclasses.field(default_factory=dict)  #: seconds summed over workers
     worker_seconds: float = 0  #: sum of the workers' wall time per image (estimate + decode + Ray's call)
     estimate_seconds: float = 0  #: sum of the estimators' own time per image
@@ -346,6 +349,7 @@ def run(dataset: str, out: str, config: RunConfig = RunConfig(), *, workers: int
                 writer.write_image(key[0], key[1], _rows_from_wire(result["rows"]))
                 summary.done += 1
                 summary.per_worker[a] = summary.per_worker.get(a, 0) + 1
+                summary.peak_rss_mib[a] = max(summary.peak_rss_mib.get(a, 0.0), result["peak_rss_mib"])
                 for name, s in result["stages"]:
                     summary.stages[name] = summary.stages.get(name, 0.0) + s
                 summary.worker_seconds += result["wall"]
@@ -370,7 +374,8 @@ def print_summary(summary: RunSummary, out=sys.stdout):
               f"{len(summary.skipped)} skipped, {len(summary.failed)} failed) in {summary.wall_seconds:.1f} s "
               f"wall; {summary.restarts} worker restart(s)\n")
     if n:
-        out.write(f"  per worker: {dict(sorted(summary.per_worker.items()))}\n")
+        out.write("  per worker: " + ", ".join(
+            f"w{k} {v} images, peak {summary.peak_rss_mib.get(k, 0):.0f} MiB" for k, v in sorted(summary.per_worker.items())) + "\n")
         total = summary.stages.get("total", summary.estimate_seconds)
         out.write("  per-stage seconds summed over workers: " +
                   ", ".join(f"{k} {v:.2f}" for k, v in summary.stages.items()) + "\n")
