@@ -189,8 +189,10 @@ BopRunner& BopRunner::operator=(BopRunner&&) noexcept = default;
 
 std::vector<std::pair<int, int>> BopRunner::images(int first_scene, int last_scene) const {
   std::vector<std::pair<int, int>> out;
-  for (const auto& [key, targets] : impl_->targets)
-    if (key.first >= first_scene && key.first <= last_scene) out.push_back(key);
+  for (const auto& key : impl_->data.target_images())
+    if (key.first >= first_scene && key.first <= last_scene &&
+        (impl_->targets.count(key) || impl_->data.bad_image(key.first, key.second)))
+      out.push_back(key);
   return out;
 }
 
