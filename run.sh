@@ -129,7 +129,7 @@ case "$cmd" in
     build build -DPERCH2_WITH_CUDA=OFF -DPERCH2_SMALL_GICP_INCLUDE_DIR="$(bench_peers)"
     for b in build/bench/bench_*; do [ -x "$b" ] && "$b" "$@"; done
     # The Python call overhead, when the build has the Python package (./run.sh test configures it).
-    if ls build/python/perch2/_perch2*.so >/dev/null 2>&1; then
+    if [ -x "$VENV/bin/python" ] && ls build/python/perch2/_perch2*.so >/dev/null 2>&1; then
       PYTHONPATH=build/python "$VENV/bin/python" bench/bench_python.py
     fi
     ;;
@@ -169,7 +169,7 @@ case "$cmd" in
       ctest --test-dir build-asan --output-on-failure -j"$JOBS" -E consumer "$@"
     ;;
   *)
-    sed -n '2,12p' "$0"
+    sed -n '2,11p' "$0"
     exit 2
     ;;
 esac

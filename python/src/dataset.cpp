@@ -1,8 +1,7 @@
 // BOP datasets: the reader (images as numpy views of the loaded image), detection files (COCO RLE, both
 // forms) and the results CSV.
-#include <nanobind/stl/map.h>
-#include <nanobind/stl/optional.h>
-#include <nanobind/stl/pair.h>
+#include <nanobind/stl/tuple.h>
+
 #include "common.hpp"
 #include "perch2/dataset/bop.hpp"
 #include "perch2/dataset/detections.hpp"
@@ -104,6 +103,56 @@ void bind_dataset(nb::module_& m) {
           },
           doc("BopImage.visible_labels"));
 
+  nb::class_<BadImage> bad(m, "BadImage", doc("BadImage"));
+  bad.def_ro("scene_id", &BadImage::scene_id).def_ro("im_id", &BadImage::im_id);
+  PERCH2_RO(bad, BadImage, path);
+  PERCH2_RO(bad, BadImage, reason);
+  bad.def("__repr__", [](const BadImage& b) {
+    return "BadImage(scene_id=" + std::to_string(b.scene_id) + ", im_id=" + std::to_string(b.im_id) + ", " +
+           b.path + ": " + b.reason + ")";
+  });
+
+  nb::class_<FileBytes> fb(m, "FileBytes", doc("FileBytes"));
+  fb.def(
+        "__init__",
+        [](FileBytes* self, const std::string& path, nb::bytes bytes) {
+          new (self) FileBytes{path, std::string(bytes.c_str(), bytes.size())};
+        },
+        nb::arg("path"), nb::arg("bytes"))
+      .def_rw("path", &FileBytes::path, "the path the bytes came from (named in errors)")
+      .def_prop_rw(
+          "bytes", [](const FileBytes& f) { return nb::bytes(f.bytes.data(), f.bytes.size()); },
+          [](FileBytes& f, nb::bytes b) { f.bytes.assign(b.c_str(), b.size()); }, "the file's bytes (a copy)")
+      .def("__getstate__",
+           [](const FileBytes& f) {
+             return nb::make_tuple(f.path, nb::bytes(f.bytes.data(), f.bytes.size()));
+           })
+      .def("__setstate__", [](FileBytes& f, const std::pair<std::string, nb::bytes>& st) {
+        new (&f) FileBytes{st.first, std::string(st.second.c_str(), st.second.size())};
+      });
+
+  nb::class_<ImageFiles> files(m, "ImageFiles", doc("ImageFiles"));
+  files.def(nb::init<>());
+  PERCH2_RW(files, ImageFiles, rgb);
+  PERCH2_RW(files, ImageFiles, depth);
+  PERCH2_RW(files, ImageFiles, masks_visib);
+  PERCH2_RW(files, ImageFiles, masks);
+  files
+      .def("__getstate__",
+           [](const ImageFiles& f) { return nb::make_tuple(f.rgb, f.depth, f.masks_visib, f.masks); })
+      .def("__setstate__",
+           [](ImageFiles& f, const std::tuple<std::optional<FileBytes>, std::optional<FileBytes>,
+                                              std::vector<FileBytes>, std::vector<FileBytes>>& st) {
+             new (&f) ImageFiles{std::get<0>(st), std::get<1>(st), std::get<2>(st), std::get<3>(st)};
+           });
+  m.def(
+      "decode_image",
+      [](const ImageInfo& info, const ImageFiles& f) {
+        nb::gil_scoped_release release;
+        return decode_image(info, f);
+      },
+      nb::arg("info"), nb::arg("files"), doc("decode_image"));
+
   nb::class_<DatasetOptions> dopt(m, "DatasetOptions", doc("DatasetOptions"));
   dopt.def(nb::init<>());
   PERCH2_RW(dopt, DatasetOptions, split);
@@ -134,13 +183,25 @@ void bind_dataset(nb::module_& m) {
       .def("has_image", &BopDataset::has_image, nb::arg("scene_id"), nb::arg("im_id"))
       .def("targets_path", &BopDataset::targets_path, doc("BopDataset.targets_path"))
       .def("targets", &BopDataset::targets, "the targets (copies)")
-      .def("target_images", &BopDataset::target_images)
+      .def("target_images", &BopDataset::target_images, doc("BopDataset.target_images"))
+      .def("bad_images", &BopDataset::bad_images, doc("BopDataset.bad_images"))
+      .def(
+          "bad_image",
+          [](const BopDataset& d, int s, int i) -> std::optional<BadImage> {
+            const BadImage* b = d.bad_image(s, i);
+            return b ? std::optional<BadImage>(*b) : std::nullopt;
+          },
+          nb::arg("scene_id"), nb::arg("im_id"), doc("BopDataset.bad_image"))
+      .def("warnings", &BopDataset::warnings, doc("BopDataset.bad_images"))
       .def(
           "read_image_files",
-          [](const BopDataset& d, int scene_id, int im_id, const ImageLoadOptions& o) {
-            return d.read_image_files(scene_id, im_id, o);
+          [](const BopDataset& d, int scene_id, int im_id, bool rgb, bool depth, bool masks_visib,
+             bool masks) {
+            nb::gil_scoped_release release;
+            return d.read_image_files(scene_id, im_id, {rgb, depth, masks_visib, masks});
           },
-          nb::arg("scene_id"), nb::arg("im_id"), nb::arg("options"), nb::call_guard<nb::gil_scoped_release>())
+          nb::arg("scene_id"), nb::arg("im_id"), nb::arg("rgb") = true, nb::arg("depth") = true,
+          nb::arg("masks_visib") = true, nb::arg("masks") = false, doc("BopDataset.read_image_files"))
       .def(
           "load_image",
           [](const BopDataset& d, int scene_id, int im_id, bool rgb, bool depth, bool masks_visib,
@@ -153,6 +214,8 @@ void bind_dataset(nb::module_& m) {
           (std::string(doc("BopDataset.load_image")) +
            "\nThe returned image's arrays are views of its storage.")
               .c_str());
+  m.def("targets_by_image", &targets_by_image, nb::arg("targets"), nb::arg("first_scene") = 0,
+        nb::arg("last_scene") = 1 << 30, doc("targets_by_image"));
   m.def("bop_id", &bop_id, nb::arg("id"), doc("bop_id"));
   m.def("load_models_info", &load_models_info, nb::arg("path"), doc("load_models_info"));
 
@@ -240,46 +303,88 @@ void bind_dataset(nb::module_& m) {
   PERCH2_RO(pe, PoseEstimate, line);
   m.def("save_results_csv", &save_results_csv, nb::arg("path"), nb::arg("estimates"),
         nb::arg("append") = false, doc("save_results_csv"));
+  pe.def("__getstate__",
+         [](const PoseEstimate& p) {
+           std::array<float, 16> T{};
+           for (int r = 0; r < 4; ++r)
+             for (int c = 0; c < 4; ++c) T[std::size_t(4 * r + c)] = p.T_cam_obj.matrix()(r, c);
+           return std::make_tuple(p.scene_id, p.im_id, p.obj_id, p.score, T, p.time_s, p.line);
+         })
+      .def("__setstate__",
+           [](PoseEstimate& p,
+              const std::tuple<int, int, int, double, std::array<float, 16>, double, int>& st) {
+             new (&p) PoseEstimate{std::get<0>(st),  std::get<1>(st), std::get<2>(st), std::get<3>(st),
+                                   Pose::Identity(), std::get<5>(st), std::get<6>(st)};
+             for (int r = 0; r < 4; ++r)
+               for (int c = 0; c < 4; ++c)
+                 p.T_cam_obj.matrix()(r, c) = std::get<4>(st)[std::size_t(4 * r + c)];
+           });
+  tg.def("__getstate__", [](const Target& t) {
+      return std::make_tuple(t.scene_id, t.im_id, t.obj_id, t.inst_count);
+    }).def("__setstate__", [](Target& t, const std::tuple<int, int, int, int>& st) {
+    new (&t) Target{std::get<0>(st), std::get<1>(st), std::get<2>(st), std::get<3>(st)};
+  });
   m.def(
       "load_results_csv",
-      [](const std::string& path, bool drop_torn_last_line) {
-        return load_results_csv(path, drop_torn_last_line);
+      [](const std::string& path, bool drop_torn_last_line, bool return_torn_line) -> nb::object {
+        int torn = 0;
+        std::vector<PoseEstimate> rows;
+        {
+          nb::gil_scoped_release release;
+          rows = load_results_csv(path, drop_torn_last_line, &torn);
+        }
+        if (return_torn_line) return nb::make_tuple(std::move(rows), torn);
+        return nb::cast(std::move(rows));
       },
-      nb::arg("path"), nb::arg("drop_torn_last_line") = false, nb::call_guard<nb::gil_scoped_release>(),
-      doc("load_results_csv"));
-  m.def("completed_images", &completed_images, nb::arg("path"), doc("completed_images"));
-  nb::class_<ResultsWriter>(m, "ResultsWriter", doc("ResultsWriter"))
-      .def(
-          "__init__",
-          [](ResultsWriter* self, std::string path, bool resume, bool fsync) {
-            ResultsWriter::Options o;
-            o.resume = resume, o.fsync = fsync;
-            new (self) ResultsWriter(std::move(path), o);
-          },
-          nb::arg("path"), nb::arg("resume") = false, nb::arg("fsync") = false)
-      .def("write_image", &ResultsWriter::write_image, nb::arg("scene_id"), nb::arg("im_id"), nb::arg("rows"))
-      .def("is_done", &ResultsWriter::is_done, nb::arg("scene_id"), nb::arg("im_id"))
-      .def("done", &ResultsWriter::done)
-      .def("resume_notes", &ResultsWriter::resume_notes);
+      nb::arg("path"), nb::arg("drop_torn_last_line") = false, nb::arg("return_torn_line") = false,
+      (std::string(doc("load_results_csv")) + "\nreturn_torn_line: return (rows, torn_line) instead of rows.")
+          .c_str());
+  m.def("completed_images", &completed_images, nb::arg("path"), nb::call_guard<nb::gil_scoped_release>(),
+        doc("completed_images"));
 
-  nb::class_<FileBytes>(m, "FileBytes")
-      .def(nb::init<>())
+  // ResultsWriter owns its files until close() (or the end of a with block, or its collection).
+  struct PyWriter {
+    std::unique_ptr<ResultsWriter> w;
+    ResultsWriter& get() const {
+      if (!w) throw InvalidInput("ResultsWriter", "is closed");
+      return *w;
+    }
+  };
+  nb::class_<PyWriter>(m, "ResultsWriter", doc("ResultsWriter"))
       .def(
           "__init__",
-          [](FileBytes* self, std::string path, nb::bytes data) {
-            new (self) FileBytes{std::move(path), std::string(data.c_str(), data.size())};
+          [](PyWriter* self, const std::string& path, bool resume, bool fsync) {
+            nb::gil_scoped_release release;
+            new (self) PyWriter{std::make_unique<ResultsWriter>(path, ResultsWriter::Options{resume, fsync})};
           },
-          nb::arg("path"), nb::arg("bytes"))
-      .def_rw("path", &FileBytes::path)
-      .def_prop_ro("bytes", [](const FileBytes& f) { return nb::bytes(f.bytes.data(), f.bytes.size()); });
-  nb::class_<ImageFiles>(m, "ImageFiles")
-      .def(nb::init<>())
-      .def_rw("rgb", &ImageFiles::rgb)
-      .def_rw("depth", &ImageFiles::depth)
-      .def_rw("masks_visib", &ImageFiles::masks_visib)
-      .def_rw("masks", &ImageFiles::masks);
-  m.def("decode_image", &decode_image, nb::arg("info"), nb::arg("files"),
-        nb::call_guard<nb::gil_scoped_release>());
+          nb::arg("path"), nb::arg("resume") = false, nb::arg("fsync") = false,
+          (std::string(doc("ResultsWriter.ResultsWriter")) + "\nresume: " +
+           doc("ResultsWriter.Options.resume") + "\nfsync: " + doc("ResultsWriter.Options.fsync"))
+              .c_str())
+      .def(
+          "write_image",
+          [](const PyWriter& w, int scene_id, int im_id, const std::vector<PoseEstimate>& rows) {
+            ResultsWriter& x = w.get();
+            nb::gil_scoped_release release;
+            x.write_image(scene_id, im_id, rows);
+          },
+          nb::arg("scene_id"), nb::arg("im_id"), nb::arg("rows"), doc("ResultsWriter.write_image"))
+      .def(
+          "is_done", [](const PyWriter& w, int s, int i) { return w.get().is_done(s, i); },
+          nb::arg("scene_id"), nb::arg("im_id"))
+      .def(
+          "done", [](const PyWriter& w) { return w.get().done(); }, doc("ResultsWriter.done"))
+      .def(
+          "resume_notes", [](const PyWriter& w) { return w.get().resume_notes(); },
+          doc("ResultsWriter.resume_notes"))
+      .def_prop_ro("path", [](const PyWriter& w) { return w.get().path(); })
+      .def_prop_ro("done_path", [](const PyWriter& w) { return w.get().done_path(); })
+      .def(
+          "close", [](PyWriter& w) { w.w.reset(); }, "Closes both files (further calls raise InvalidInput).")
+      .def("__enter__", [](nb::handle self) { return nb::borrow(self); })
+      .def(
+          "__exit__", [](PyWriter& w, nb::handle, nb::handle, nb::handle) { w.w.reset(); },
+          nb::arg("type").none(), nb::arg("value").none(), nb::arg("traceback").none());
 }
 
 }  // namespace perch2_py

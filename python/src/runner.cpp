@@ -1,6 +1,9 @@
 // Per-image BOP estimation in either mode (perch2::dataset::BopRunner): what `perch2 estimate` runs, and
 // the per-image errors it reports (perch2.ImageError).
+#include <nanobind/stl/tuple.h>
 #include <nanobind/stl/unique_ptr.h>
+
+#include <tuple>
 
 #include "common.hpp"
 #include "perch2/dataset/runner.hpp"
@@ -101,6 +104,18 @@ void bind_runner(nb::module_& m) {
   PERCH2_RO(ir, ImageResult, instances);
   PERCH2_RO(ir, ImageResult, tabletop);
   PERCH2_RO(ir, ImageResult, sixdof);
+  // Pickled without the estimator's full result (tabletop / sixdof come back as None): what a worker process
+  // sends to the process that writes the results.
+  using State = std::tuple<int, int, std::vector<PoseEstimate>, std::vector<int>, std::vector<bool>,
+                           std::vector<std::pair<std::string, double>>, double, int, int, int, int>;
+  ir.def("__getstate__", [](const ImageResult& r) {
+      return State{r.scene_id, r.im_id,     r.rows,    r.row_models, r.row_found, r.stages,
+                   r.seconds,  r.requested, r.missing, r.unusable,   r.instances};
+    }).def("__setstate__", [](ImageResult& r, const State& st) {
+    new (&r) ImageResult{};
+    std::tie(r.scene_id, r.im_id, r.rows, r.row_models, r.row_found, r.stages, r.seconds, r.requested,
+             r.missing, r.unusable, r.instances) = st;
+  });
 
   static const std::string runner_doc = std::string(doc("file:perch2/dataset/runner.hpp")) + "\n\n" +
                                         doc("BopRunner") +

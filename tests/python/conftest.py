@@ -1,4 +1,4 @@
-"""Shared fixtures: the perch2 CLI (to compare with), tiny generated BOP datasets, the shared real data.
+"""Shared fixtures: the perch2 CLI (to compare with) and tiny generated BOP datasets.
 
 Run through ctest (./run.sh test), which sets PYTHONPATH to the built package and PERCH2_CLI to the built
 command-line tool; or by hand: PYTHONPATH=build/python PERCH2_CLI=build/examples/perch2 pytest tests/python
@@ -11,12 +11,6 @@ import subprocess
 import pytest
 
 SOURCE = pathlib.Path(os.environ.get("PERCH2_SOURCE_DIR", pathlib.Path(__file__).resolve().parents[2]))
-
-
-def _tmp_root():
-    root = pathlib.Path(os.environ.get("PERCH2_TEST_TMP", SOURCE / "build" / "tests" / "python_tmp"))
-    root.mkdir(parents=True, exist_ok=True)
-    return root
 
 
 @pytest.fixture(scope="session")
@@ -34,33 +28,24 @@ def run(*args, **kw):
     return p
 
 
-def _generated(cli, mode, tmp_name):
-    # Session-scoped per pytest process; each ctest test is its own process, so the datasets are per file.
-    out = _tmp_root() / f"{tmp_name}_{os.getpid()}"
-    if not (out / "models").exists():
-        run(cli, "generate", "--mode", mode, "--scenes", "1", "--images-per-scene", "2", "--objects", "2",
-            "--seed", "5", "--out", out)
+def _generated(cli, mode, tmp_path_factory):
+    out = tmp_path_factory.mktemp(f"generated_{mode}")
+    run(cli, "generate", "--mode", mode, "--scenes", "1", "--images-per-scene", "2", "--objects", "2", "--seed", "5",
+        "--out", out)
     return out
 
 
 @pytest.fixture(scope="session")
-def dataset_3dof(cli):
-    return _generated(cli, "3dof", "gen3dof")
+def dataset_3dof(cli, tmp_path_factory):
+    """1 scene, 2 images, 2 objects on a table (seed 5), as tests/cli_estimate_smoke.cmake uses."""
+    return _generated(cli, "3dof", tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
-def dataset_6dof(cli):
-    return _generated(cli, "6dof", "gen6dof")
+def dataset_6dof(cli, tmp_path_factory):
+    return _generated(cli, "6dof", tmp_path_factory)
 
 
 @pytest.fixture
 def tmp_out(tmp_path_factory):
     return tmp_path_factory.mktemp("out", numbered=True)
-
-
-@pytest.fixture(scope="session")
-def shared_data():
-    d = pathlib.Path(os.environ.get("PERCH2_SHARED_DATA_DIR", SOURCE.parent / "shared" / "data"))
-    if not d.is_dir():
-        pytest.skip(f"the shared data ({d}) is not beside the checkout")
-    return d

@@ -113,3 +113,88 @@ def test_eval_gives_the_numbers_of_perch2_eval_json(cli, dataset_6dof, tmp_out):
     calls = []
     perch2.eval.report(str(dataset_6dof), rows, vsd=False, progress=lambda d, t: calls.append((d, t)))
     assert calls[-1][0] == calls[-1][1] == 2
+
+
+def test_rows_and_image_results_pickle(dataset_6dof):
+    import pickle
+
+    ds = perch2.bop.Dataset(str(dataset_6dof))
+    runner = perch2.BopRunner(ds.bop, perch2.RunOptions("6dof", backend="cpu"))
+    scene_id, im_id = runner.images()[0]
+    r = runner.estimate(scene_id, im_id)
+    back = pickle.loads(pickle.dumps(r))
+    assert back.sixdof is None and r.sixdof is not None  # the full result stays behind
+    assert (back.scene_id, back.im_id, back.seconds, back.stages) == (r.scene_id, r.im_id, r.seconds, r.stages)
+    assert back.row_found == r.row_found and back.row_models == r.row_models and back.instances == r.instances
+    for a, b in zip(r.rows, back.rows):
+        assert (a.scene_id, a.im_id, a.obj_id, a.score, a.time_s) == (b.scene_id, b.im_id, b.obj_id, b.score, b.time_s)
+        np.testing.assert_array_equal(a.T_cam_obj, b.T_cam_obj)
+    t = pickle.loads(pickle.dumps(ds.targets()[0]))
+    assert (t.scene_id, t.im_id, t.obj_id, t.inst_count) == (ds.targets()[0].scene_id, ds.targets()[0].im_id,
+                                                           ds.targets()[0].obj_id, ds.targets()[0].inst_count)
+
+
+def test_images_from_bytes_estimate_like_images_from_files(dataset_6dof):
+    import pickle
+
+    ds = perch2.bop.Dataset(str(dataset_6dof))
+    runner = perch2.BopRunner(ds.bop, perch2.RunOptions("6dof", backend="cpu"))
+    scene_id, im_id = runner.images()[0]
+    o = runner.load_options()
+    files = ds.read_image_files(scene_id, im_id, o.rgb, o.depth, o.masks_visib, o.masks)
+    files = pickle.loads(pickle.dumps(files))  # as a driver would send them
+    assert files.depth.path.endswith("000000.png") and files.depth.bytes[:4] == b"\x89PNG"
+    image = perch2.decode_image(ds.info(scene_id, im_id), files)
+    np.testing.assert_array_equal(image.frame.depth_m, ds.load_image(scene_id, im_id).frame.depth_m)
+    a, b = runner.estimate(image).rows, runner.estimate(scene_id, im_id).rows
+    assert [r.obj_id for r in a] == [r.obj_id for r in b]
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x.T_cam_obj, y.T_cam_obj)
+    files.depth = perch2.FileBytes("sent/depth.png", files.depth.bytes[:50])
+    with pytest.raises(perch2.FileError, match="sent/depth.png"):
+        perch2.decode_image(ds.info(scene_id, im_id), files)
+
+
+def test_results_writer_resume_and_torn_lines(dataset_6dof, tmp_out):
+    ds = perch2.bop.Dataset(str(dataset_6dof))
+    rows = ground_truth_rows(ds)
+    by_image = {}
+    for r in rows:
+        by_image.setdefault((r.scene_id, r.im_id), []).append(r)
+    (k0, r0), (k1, r1) = sorted(by_image.items())
+    path = str(tmp_out / "stream.csv")
+    with perch2.bop.ResultsWriter(path) as w:
+        w.write_image(*k0, r0)
+        w.write_image(5, 5, [])  # an image with no rows still counts as done
+        with pytest.raises(perch2.InvalidInput):
+            w.write_image(*k0, r0)  # each image exactly once
+    assert perch2.bop.completed_images(path) == {k0: len(r0), (5, 5): 0}
+    with open(path, "a") as f:
+        f.write("1,1,5,0.9,1 0 0")  # a torn last line
+    with pytest.raises(perch2.FileError, match="torn"):
+        perch2.bop.load_results_csv(path)
+    kept, torn = perch2.bop.load_results_csv(path, drop_torn_last_line=True, return_torn_line=True)
+    assert len(kept) == len(r0) and torn == len(r0) + 2
+    w = perch2.bop.ResultsWriter(path, resume=True)
+    assert w.is_done(*k0) and not w.is_done(*k1) and w.resume_notes()
+    w.write_image(*k1, r1)
+    w.close()
+    assert len(perch2.bop.load_results_csv(path)) == len(rows)
+    with pytest.raises(perch2.InvalidInput, match="closed"):
+        w.done()
+
+
+def test_a_malformed_entry_costs_only_its_image(dataset_6dof, tmp_out):
+    import shutil
+
+    root = tmp_out / "bad_entry"
+    shutil.copytree(dataset_6dof, root)
+    gt = root / "test" / "000001" / "scene_gt.json"
+    data = json.loads(gt.read_text())
+    data["1"][0]["cam_R_m2c"] = [1, 2]  # not 9 numbers
+    gt.write_text(json.dumps(data))
+    ds = perch2.bop.Dataset(str(root))
+    assert list(ds.bad_images()) == [(1, 1)] and "cam_*_m2c" in ds.bad_image(1, 1).reason
+    assert ds.bad_image(1, 0) is None and ds.image_ids() == [(1, 0)]
+    with pytest.raises(perch2.FileError, match="scene_gt.json"):
+        ds.info(1, 1)

@@ -16,7 +16,7 @@ CHECK = r"""
 import numpy as np, os, perch2, sys
 assert os.path.dirname(perch2.__file__).startswith(sys.prefix), perch2.__file__
 v = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], float)
-m = perch2.Mesh(v, [[0, 1, 2]])
+m = perch2.Mesh(v, [[0, 2, 1]])  # facing the camera (-z)
 T = np.eye(4); T[2, 3] = 0.5
 c = perch2.Renderer([m], backend="thrust_omp").render(0, T, perch2.Intrinsics(100, 100, 32, 24, 64, 48))
 assert len(c) > 0
