@@ -444,18 +444,30 @@ const ImageInfo& BopDataset::info(int scene_id, int im_id) const {
   return scenes_.at(scene_id).at(im_id);
 }
 
-ImageFiles BopDataset::read_image_files(int scene_id, int im_id, const ImageLoadOptions& options) const {
+ImageFiles BopDataset::image_files(int scene_id, int im_id, const ImageLoadOptions& options) const {
   const ImageInfo& image = info(scene_id, im_id);
   const std::string dir = join(split_path_, bop_id(scene_id));
-  auto read = [](const std::string& path) { return FileBytes{path, io::read_file(path)}; };
   ImageFiles out;
-  if (options.depth) out.depth = read(join(join(dir, "depth"), bop_id(im_id) + ".png"));
-  if (options.rgb) out.rgb = read(rgb_path(dir, im_id));
+  if (options.depth) out.depth = FileBytes{join(join(dir, "depth"), bop_id(im_id) + ".png"), {}};
+  if (options.rgb) out.rgb = FileBytes{rgb_path(dir, im_id), {}};
   for (std::size_t g = 0; g < image.gt.size(); ++g) {
-    if (options.masks_visib) out.masks_visib.push_back(read(mask_path(dir, "mask_visib", im_id, int(g))));
-    if (options.masks) out.masks.push_back(read(mask_path(dir, "mask", im_id, int(g))));
+    if (options.masks_visib) out.masks_visib.push_back({mask_path(dir, "mask_visib", im_id, int(g)), {}});
+    if (options.masks) out.masks.push_back({mask_path(dir, "mask", im_id, int(g)), {}});
   }
   return out;
+}
+
+ImageFiles read_files(ImageFiles files) {
+  auto read = [](FileBytes& f) { f.bytes = io::read_file(f.path); };
+  if (files.depth) read(*files.depth);
+  if (files.rgb) read(*files.rgb);
+  for (FileBytes& f : files.masks_visib) read(f);
+  for (FileBytes& f : files.masks) read(f);
+  return files;
+}
+
+ImageFiles BopDataset::read_image_files(int scene_id, int im_id, const ImageLoadOptions& options) const {
+  return read_files(image_files(scene_id, im_id, options));
 }
 
 BopImage BopDataset::load_image(int scene_id, int im_id, const ImageLoadOptions& options) const {

@@ -14,7 +14,9 @@
 //     }
 //   }
 //
-// The image can also come from memory (decode_image, perch2/dataset/bop.hpp): runner.estimate(image).
+// The image can also come from memory: a process that reads the dataset sends the bytes of
+// runner.image_files(scene, im) (read_files, perch2/dataset/bop.hpp); one that cannot (the same dataset's
+// JSON and models, without its images) calls runner.estimate(scene, im, files).
 #pragma once
 
 #include <memory>
@@ -118,6 +120,12 @@ class PERCH2_API BopRunner {
   BopImage load_image(int scene_id, int im_id) const;
   /// load_image() + estimate(image). ImageError if anything about this image is bad.
   ImageResult estimate(int scene_id, int im_id) const;
+  /// The files estimate() reads for the image (paths; bytes empty: read_files() fills them). ImageError if
+  /// the image is bad (its JSON entry).
+  ImageFiles image_files(int scene_id, int im_id) const;
+  /// Decodes the image from its files' bytes (decode_image with the dataset's ImageInfo) and estimates it;
+  /// ImageError naming the file for bad bytes, as estimate(scene_id, im_id).
+  ImageResult estimate(int scene_id, int im_id, const ImageFiles& files) const;
   /// Estimates an image already in memory (e.g. from decode_image) with its targets from the dataset.
   ImageResult estimate(const BopImage& image) const;
 
