@@ -36,7 +36,7 @@ void check_same_rows(const ImageResult& a, const ImageResult& b) {
 
 }  // namespace
 
-TEST_CASE("BopRunner: both modes, from the dataset and from the files' bytes; bad images are ImageErrors") {
+TEST_CASE("BopRunner: both modes, from the dataset and from the files' bytes, bad images are ImageErrors") {
   for (const auto mode : {synth::Mode::ThreeDof, synth::Mode::SixDof}) {
     const std::string root = tiny_dataset(mode);
     RunOptions options;
