@@ -262,6 +262,8 @@ TEST_CASE("BopDataset: the other images of a scene with a bad entry are unaffect
         std::string::npos);
   CHECK(d.targets().size() == 3);  // bop19 targets of bad images are kept: the run reports the images
   CHECK(d.target_images().size() == 3);
+  CHECK(run_images(d) == std::vector<std::pair<int, int>>{{2, 5}, {2, 6}, {2, 7}});  // bad ones included
+  CHECK(run_images(d, 3, 9).empty());
   REQUIRE(d.warnings().size() == 2);  // the key "x", the entry for image 9 (in no scene_camera.json entry)
   CHECK(d.warnings()[0].find("\"x\"") != std::string::npos);
   CHECK(d.warnings()[1].find("image 9 is not in scene_camera.json") != std::string::npos);

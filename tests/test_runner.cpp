@@ -57,6 +57,8 @@ TEST_CASE("BopRunner: both modes, from the dataset and from the files' bytes, ba
     CHECK((options.mode == RunMode::Tabletop ? from_dataset.tabletop.has_value()
                                              : from_dataset.sixdof.has_value()));
 
+    CHECK(runner.images() == run_images(BopDataset(root)));
+    CHECK(load_options(options).masks_visib == (options.mode == RunMode::SixDof));
     const ImageFiles paths = runner.image_files(scene, im);
     REQUIRE(paths.depth);
     CHECK(paths.depth->bytes.empty());

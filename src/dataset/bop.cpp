@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <optional>
+#include <set>
 
 #include "json_util.hpp"
 #include "perch2/io/image_io.hpp"
@@ -392,6 +393,18 @@ BopDataset::BopDataset(std::string root, DatasetOptions options) : root_(std::mo
   }
   if (!targets_path_.empty())
     targets_ = parse_targets(targets_path_, scenes_, scene_problems, bad_images_, target_images_);
+}
+
+std::vector<std::pair<int, int>> run_images(const BopDataset& data, int first_scene, int last_scene) {
+  std::set<std::pair<int, int>> with_targets;
+  for (const auto& t : data.targets())
+    if (t.inst_count > 0) with_targets.insert({t.scene_id, t.im_id});
+  std::vector<std::pair<int, int>> out;
+  for (const auto& key : data.target_images())
+    if (key.first >= first_scene && key.first <= last_scene &&
+        (with_targets.count(key) || data.bad_image(key.first, key.second)))
+      out.push_back(key);
+  return out;
 }
 
 const ModelInfo& BopDataset::model_info(int obj_id) const {

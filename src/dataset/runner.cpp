@@ -188,12 +188,7 @@ BopRunner::BopRunner(BopRunner&&) noexcept = default;
 BopRunner& BopRunner::operator=(BopRunner&&) noexcept = default;
 
 std::vector<std::pair<int, int>> BopRunner::images(int first_scene, int last_scene) const {
-  std::vector<std::pair<int, int>> out;
-  for (const auto& key : impl_->data.target_images())
-    if (key.first >= first_scene && key.first <= last_scene &&
-        (impl_->targets.count(key) || impl_->data.bad_image(key.first, key.second)))
-      out.push_back(key);
-  return out;
+  return run_images(impl_->data, first_scene, last_scene);
 }
 
 const std::vector<Target>& BopRunner::targets(int scene_id, int im_id) const {
@@ -202,10 +197,14 @@ const std::vector<Target>& BopRunner::targets(int scene_id, int im_id) const {
   return it == impl_->targets.end() ? none : it->second;
 }
 
-ImageLoadOptions BopRunner::load_options() const {
+ImageLoadOptions load_options(const RunOptions& options) {
   ImageLoadOptions load;
-  load.masks_visib = impl_->options.mode == RunMode::SixDof && impl_->options.masks == "gt";
+  load.masks_visib = options.mode == RunMode::SixDof && options.masks == "gt";
   return load;
+}
+
+ImageLoadOptions BopRunner::load_options() const {
+  return dataset::load_options(impl_->options);
 }
 
 namespace {

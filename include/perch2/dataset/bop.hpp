@@ -204,6 +204,12 @@ std::map<std::pair<int, int>, std::vector<Target>> targets_by_image(const std::v
                                                                     int first_scene = 0,
                                                                     int last_scene = 1 << 30);
 
+/// The images a run over scenes [first_scene, last_scene] estimates, (scene_id, im_id) ascending: those the
+/// targets file lists with at least one instance, and the bad images it lists (a run reports them).
+/// BopRunner::images() is this; a driver that holds no models can list them too.
+std::vector<std::pair<int, int>> run_images(const BopDataset& data, int first_scene = 0,
+                                            int last_scene = 1 << 30);
+
 /// Zero-padded 6-digit id, as BOP names folders and files ("000042").
 std::string bop_id(int id);
 
