@@ -40,8 +40,6 @@ import tempfile
 import time
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
-import numpy as np
-
 import perch2
 
 ImageKey = Tuple[int, int]
@@ -82,42 +80,6 @@ class RunConfig:
 
     def scene_range(self) -> Tuple[int, int]:
         return self.scenes if self.scenes is not None else (0, 1 << 30)
-
-
-def _rows_to_wire(rows) -> List[tuple]:
-    """PoseEstimates as plain tuples (exact floats) for Ray's pickling."""
-    return [(r.scene_id, r.im_id, r.obj_id, float(r.score), np.asarray(r.T_cam_obj, np.float32).copy(),
-             float(r.time_s)) for r in rows]
-
-
-def _rows_from_wire(wire) -> list:
-    rows = []
-    for scene_id, im_id, obj_id, score, T_cam_obj, time_s in wire:
-        e = perch2.PoseEstimate()
-        e.scene_id, e.im_id, e.obj_id, e.score, e.T_cam_obj, e.time_s = scene_id, im_id, obj_id, score, T_cam_obj, time_s
-        rows.append(e)
-    return rows
-
-
-def _files_to_wire(files) -> dict:
-    """An ImageFiles (paths + bytes of an image's files) as plain data."""
-
-    def one(f):
-        return None if f is None else (f.path, bytes(f.bytes))
-
-    return dict(rgb=one(files.rgb), depth=one(files.depth), masks_visib=[one(f) for f in files.masks_visib],
-                masks=[one(f) for f in files.masks])
-
-
-def _files_from_wire(wire) -> "perch2.ImageFiles":
-    def one(t):
-        return None if t is None else perch2.FileBytes(t[0], t[1])
-
-    files = perch2.ImageFiles()
-    files.rgb, files.depth = one(wire["rgb"]), one(wire["depth"])
-    files.masks_visib = [one(t) for t in wire["masks_visib"]]
-    files.masks = [one(t) for t in wire["masks"]]
-    return files
 
 
 # ---- the dataset without its images, for workers that do not see the path ----------------------------
@@ -171,12 +133,7 @@ class Worker:
     def pid(self) -> int:
         return os.getpid()
 
-    def load_options(self) -> tuple:
-        """What the runner reads of an image (rgb, depth, masks_visib, masks): the files a driver ships."""
-        o = self.runner.load_options()
-        return (o.rgb, o.depth, o.masks_visib, o.masks)
-
-    def estimate(self, key: ImageKey, files: Optional[dict] = None) -> dict:
+    def estimate(self, key: ImageKey, files=None) -> dict:
         start = time.perf_counter()
         out = dict(key=key, worker=self.index, pid=os.getpid())
         if self.dies_on is not None and tuple(key) == tuple(self.dies_on):
@@ -185,11 +142,11 @@ class Worker:
             if files is None:
                 r = self.runner.estimate(*key)
             else:
-                r = self.runner.estimate(perch2.decode_image(self.data.info(*key), _files_from_wire(files)))
+                r = self.runner.estimate(key[0], key[1], files)
         except (perch2.ImageError, perch2.FileError, perch2.InvalidInput) as e:
             out["error"] = str(e)
         else:
-            out.update(rows=_rows_to_wire(r.rows), stages=list(r.stages), seconds=r.seconds,
+            out.update(rows=list(r.rows), stages=list(r.stages), seconds=r.seconds,
                        requested=r.requested, missing=r.missing, unusable=r.unusable)
         out["wall"] = time.perf_counter() - start
         out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -267,8 +224,7 @@ def run(dataset: str, out: str, config: RunConfig = RunConfig(), *, workers: int
     if config.backend == "cuda" and gpus_per_worker <= 0:
         raise perch2.InvalidInput("gpus_per_worker", "the cuda backend needs a GPU per worker (e.g. 1)")
     data = config.open_dataset(dataset)  # dataset-level problems fail here, at once
-    first, last = config.scene_range()
-    images = [k for k in data.target_images() if first <= k[0] <= last]  # TODO run_images
+    images = perch2.run_images(data, *config.scene_range())
     writer = perch2.ResultsWriter(out, resume=resume)  # unwritable output fails here too
     summary = RunSummary(total=len(images))
     queue = [k for k in images if not writer.is_done(*k)]
@@ -292,18 +248,19 @@ def run(dataset: str, out: str, config: RunConfig = RunConfig(), *, workers: int
     show = _Progress(progress, summary.total, summary.resumed)
     start = time.perf_counter()
 
-    load = None
-    if ship_images:  # the files a worker's runner reads, read here
-        load = perch2.ImageLoadOptions()
-        load.rgb, load.depth, load.masks_visib, load.masks = ray.get(actors[0].load_options.remote())
+    load = perch2.load_options(config.run_options())  # what a worker's runner reads of an image
+
+    pings: Dict["ray.ObjectRef", int] = {}  # ref -> actor: is a restarted actor back?
+    down: Dict[int, float] = {}  # actor -> when to ask again whether it is back
 
     def submit(a: int):
-        while queue and len(sent[a]) < queue_per_worker:
+        while a not in down and queue and len(sent[a]) < queue_per_worker:
             key = queue.pop()
             files = None
             if ship_images:
                 try:
-                    files = _files_to_wire(data.read_image_files(key[0], key[1], load))
+                    files = data.read_image_files(key[0], key[1], rgb=load.rgb, depth=load.depth,
+                                                  masks_visib=load.masks_visib, masks=load.masks)
                 except (perch2.FileError, perch2.InvalidInput) as e:  # as the worker would: this image only
                     summary.skipped[key] = str(e)
                     continue
@@ -311,52 +268,83 @@ def run(dataset: str, out: str, config: RunConfig = RunConfig(), *, workers: int
             in_flight[ref] = (key, a)
             sent[a].append(ref)
 
-    def lost(a: int, ref, why: str):
-        """Actor a died: the image it was running (its oldest in flight) counts an attempt; the rest go back."""
+    def lost(a: int, why: str):
+        """Actor a died. Its images ran in the order sent: those that returned are handled as usual, the
+        first that did not was running (it counts an attempt), the rest had not started (re-sent as they are)."""
         summary.restarts += 1
-        for k, r in enumerate(list(sent[a])):
+        down[a] = time.perf_counter()  # nothing more goes to it until it answers a ping
+        refs, running = list(sent[a]), None
+        sent[a].clear()
+        back = []
+        for r in refs:
             key, _ = in_flight.pop(r)
-            if k == 0:
+            try:
+                finished(key, a, ray.get(r))
+                continue
+            except ray.exceptions.RayActorError:
+                pass
+            if running is None:
+                running = key
                 attempts[key] = attempts.get(key, 0) + 1
                 if attempts[key] >= max_attempts:
                     summary.failed[key] = f"its worker died {attempts[key]} times ({why})"
                     continue
-            queue.append(key)
-        sent[a].clear()
+            back.append(key)
+        queue.extend(reversed(back))  # popped next, in the order they were sent
+
+    def finished(key: ImageKey, a: int, result: dict) -> bool:
+        """Handles a returned image; False if the run must stop (strict and a bad image)."""
+        if "error" in result:
+            summary.skipped[key] = result["error"]
+            if progress is not None:
+                progress.write(f"perch2.distributed: skipped scene {key[0]} image {key[1]}: {result['error']}\n")
+            if strict:
+                return False
+        elif not writer.is_done(*key):  # exactly once, whatever came back twice
+            writer.write_image(key[0], key[1], result["rows"])
+            summary.done += 1
+            summary.per_worker[a] = summary.per_worker.get(a, 0) + 1
+            summary.peak_rss_mib[a] = max(summary.peak_rss_mib.get(a, 0.0), result["peak_rss_mib"])
+            for name, s in result["stages"]:
+                summary.stages[name] = summary.stages.get(name, 0.0) + s
+            summary.worker_seconds += result["wall"]
+            summary.estimate_seconds += result["seconds"]
+        show.show(summary)
+        if on_result is not None:
+            on_result(result, summary, actors)
+        return True
 
     try:
         for a in range(len(actors)):
             submit(a)
-        while in_flight:
-            ready, _ = ray.wait(list(in_flight), num_returns=1)
+        while in_flight or pings or (queue and down):
+            now = time.perf_counter()
+            for a, when in list(down.items()):
+                if when <= now and a not in pings.values():
+                    pings[actors[a].pid.remote()] = a
+            ready, _ = ray.wait(list(in_flight) + list(pings), num_returns=1, timeout=0.5)
+            if not ready:
+                continue
             ref = ready[0]
+            if ref in pings:  # a restarted actor: back (take images again) or not yet (ask again soon)
+                a = pings.pop(ref)
+                try:
+                    ray.get(ref)
+                    del down[a]
+                    submit(a)
+                except ray.exceptions.RayActorError:
+                    down[a] = time.perf_counter() + 0.5
+                continue
             key, a = in_flight[ref]
             try:
                 result = ray.get(ref)
             except ray.exceptions.RayActorError as e:
-                lost(a, ref, type(e).__name__)
-                submit(a)
+                lost(a, type(e).__name__)
                 continue
             del in_flight[ref]
             sent[a].remove(ref)
-            if "error" in result:
-                summary.skipped[key] = result["error"]
-                if progress is not None:
-                    progress.write(f"perch2.distributed: skipped scene {key[0]} image {key[1]}: {result['error']}\n")
-                if strict:
-                    break
-            elif not writer.is_done(*key):  # exactly once, whatever came back twice
-                writer.write_image(key[0], key[1], _rows_from_wire(result["rows"]))
-                summary.done += 1
-                summary.per_worker[a] = summary.per_worker.get(a, 0) + 1
-                summary.peak_rss_mib[a] = max(summary.peak_rss_mib.get(a, 0.0), result["peak_rss_mib"])
-                for name, s in result["stages"]:
-                    summary.stages[name] = summary.stages.get(name, 0.0) + s
-                summary.worker_seconds += result["wall"]
-                summary.estimate_seconds += result["seconds"]
-            show.show(summary)
-            if on_result is not None:
-                on_result(result, summary, actors)
+            if not finished(key, a, result):
+                break
             submit(a)
     except KeyboardInterrupt:
         summary.interrupted = True  # every written image is complete; resume picks up the rest

@@ -117,6 +117,10 @@ void bind_runner(nb::module_& m) {
              r.missing, r.unusable, r.instances) = st;
   });
 
+  m.def("load_options", &load_options, nb::arg("options"), doc("load_options"));
+  m.def("run_images", &run_images, nb::arg("dataset"), nb::arg("first_scene") = 0,
+        nb::arg("last_scene") = 1 << 30, doc("run_images"));
+
   static const std::string runner_doc = std::string(doc("file:perch2/dataset/runner.hpp")) + "\n\n" +
                                         doc("BopRunner") +
                                         "\n\nCalls release the GIL; calls on one runner are serialised.";
@@ -156,6 +160,18 @@ void bind_runner(nb::module_& m) {
             return r.call([&](const BopRunner& x) { return x.estimate(image); });
           },
           nb::arg("image"), "Estimates an image already in memory (its targets from the dataset).")
+      .def(
+          "estimate",
+          [](const PyRunner& r, int s, int i, const ImageFiles& files) {
+            return r.call([&](const BopRunner& x) { return x.estimate(s, i, files); });
+          },
+          nb::arg("scene_id"), nb::arg("im_id"), nb::arg("files"), doc("BopRunner.estimate"))
+      .def(
+          "image_files",
+          [](const PyRunner& r, int s, int i) {
+            return r.call([&](const BopRunner& x) { return x.image_files(s, i); });
+          },
+          nb::arg("scene_id"), nb::arg("im_id"), doc("BopRunner.image_files"))
       .def_prop_ro(
           "options", [](const PyRunner& r) { return r.runner.options(); }, "the run's options (a copy)")
       .def(
