@@ -2,7 +2,8 @@
 # perch2 estimate loses nothing (issue 20): on a generated 3-image dataset, against one clean run,
 #   - a truncated depth PNG in the middle, a truncated rgb PNG (3dof) or a missing mask (6dof), a malformed
 #     scene_gt.json entry: only that image is missing, the other rows are the clean run's, exit status 3, the
-#     summary names the file and the reason; --strict stops at the first (exit 1);
+#     summary names the file and the reason; --strict stops at the first (exit 1); an unwritable output or
+#     no models_info.json fails at once (exit 1);
 #   - a run killed (SIGKILL) after its first image, with a torn line appended, then --resume: the torn line
 #     is reported and dropped and the rows are the clean run's;
 #   - SIGINT / SIGTERM during a run: exit 130 / 143 with a message, a CSV of finished images, --resume
@@ -85,6 +86,14 @@ sed -i '/^  "0": /s/cam_t_m2c/cam_t_broken/' bad_json/test/000001/scene_gt.json
 run bad_json.log --dataset bad_json --out bad_json.csv
 expect 3 "skipped scene 1 image 0" "scene_gt.json: image 0 instance 0: missing key \"cam_t_m2c\""
 [ "$(rows bad_json.csv)" == "$(rows_but_image clean.csv 0)" ] || fail "malformed scene_gt entry: other rows differ"
+
+# Dataset-level problems still fail at once, before any image.
+run unwritable.log --dataset data --out no_such_dir/r.csv
+expect 1 "no_such_dir/r.csv: cannot be written"
+cp -r data no_info
+rm no_info/models/models_info.json
+run no_info.log --dataset no_info --out no_info.csv
+expect 1 "models_info.json"
 
 # Killed after its first image (plus a torn line, as a kill during a write would leave), then resumed.
 "$perch2" estimate --mode "$mode" --backend cpu --dataset data --out killed.csv >killed.log 2>&1 &

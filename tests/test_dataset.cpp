@@ -125,7 +125,7 @@ TEST_CASE("BopDataset reads hand-written JSON: millimetres to metres, poses, sym
   CHECK(d.targets()[0].inst_count == 1);
 }
 
-TEST_CASE("BopDataset::load_image: depth scale, planar depth, masks; image size without camera.json") {
+TEST_CASE("BopDataset::load_image: depth scale, planar depth, masks, image size without camera.json") {
   for (const bool camera_json : {true, false}) {
     CAPTURE(camera_json);
     const BopDataset d(write_small_dataset(camera_json ? "bop_img_a" : "bop_img_b", camera_json));
@@ -236,7 +236,7 @@ TEST_CASE("BopDataset: a malformed scene entry costs only its image, named with 
   CHECK(error_of([&] { BopDataset d(root); }).find("models_info.json") != std::string::npos);
 }
 
-TEST_CASE("BopDataset: the other images of a scene with a bad entry are unaffected; stray keys warn") {
+TEST_CASE("BopDataset: the other images of a scene with a bad entry are unaffected, stray keys warn") {
   const std::string root = write_small_dataset("bop_bad_one");
   const std::string scene = root + "/test/000002";
   test::write_text(scene + "/scene_camera.json", R"({
@@ -262,6 +262,8 @@ TEST_CASE("BopDataset: the other images of a scene with a bad entry are unaffect
         std::string::npos);
   CHECK(d.targets().size() == 3);  // bop19 targets of bad images are kept: the run reports the images
   CHECK(d.target_images().size() == 3);
+  CHECK(run_images(d) == std::vector<std::pair<int, int>>{{2, 5}, {2, 6}, {2, 7}});  // bad ones included
+  CHECK(run_images(d, 3, 9).empty());
   REQUIRE(d.warnings().size() == 2);  // the key "x", the entry for image 9 (in no scene_camera.json entry)
   CHECK(d.warnings()[0].find("\"x\"") != std::string::npos);
   CHECK(d.warnings()[1].find("image 9 is not in scene_camera.json") != std::string::npos);
@@ -272,7 +274,7 @@ TEST_CASE("BopDataset: the other images of a scene with a bad entry are unaffect
   CHECK(error_of([&] { BopDataset bad(root2); }).find("image 8 is not in the split") != std::string::npos);
 }
 
-TEST_CASE("decode_image from the files' bytes equals load_image; bad bytes name their file") {
+TEST_CASE("decode_image from the files' bytes equals load_image, bad bytes name their file") {
   const std::string root = write_small_dataset("bop_bytes");
   const BopDataset d(root);
   ImageLoadOptions all;
@@ -364,7 +366,7 @@ TEST_CASE("COCO RLE: hand-encoded masks, string codec, round trips") {
   CHECK_THROWS_AS(rle_from_string("1~", 3, 4), InvalidInput);          // outside '0'..'o'
 }
 
-TEST_CASE("Detection files: list and string counts decode to the same mask; detections stay apart") {
+TEST_CASE("Detection files: list and string counts decode to the same mask, detections stay apart") {
   const std::string path = test::temp_path("dets.json");
   test::write_text(path, R"([
     {"scene_id": 1, "image_id": 4, "category_id": 5, "score": 0.9, "bbox": [0, 0, 2, 3], "time": 0.5,

@@ -61,6 +61,40 @@ void write_overlay(const dataset::BopRunner& runner, const dataset::BopImage& im
       cli::draw_overlay(image.frame.rgb, image.frame.camera, runner.meshes(), model_of_pose, poses));
 }
 
+/// What a run did, for its summary.
+struct Tally {
+  cli::StageTimes times;
+  std::vector<std::string> skipped;  ///< ImageError messages
+  int seen = 0, estimated = 0, poses = 0, requested = 0, missing = 0, unusable = 0;
+  double seconds = 0, last_s = 0;
+
+  void add(const dataset::ImageResult& r) {
+    times.add(r.stages);
+    poses += int(r.rows.size()), requested += r.requested, missing += r.missing, unusable += r.unusable;
+    seconds += r.seconds, last_s = r.seconds;
+    ++estimated;
+  }
+  double mean_seconds() const { return estimated ? seconds / estimated : 0.0; }
+
+  void print(const dataset::BopRunner& runner, const std::string& out, const std::string& overlays,
+             bool strict) const {
+    std::printf("perch2 estimate: %d poses for %d requested instances in %d images -> %s\n", poses, requested,
+                estimated, out.c_str());
+    if (missing > 0) std::printf("  %d instance(s) not found\n", missing);
+    if (unusable > 0)
+      std::printf("  %d instance(s) skipped: too few valid depth readings inside the mask\n", unusable);
+    std::printf("per-stage wall-clock times (%s):\n", runner.describe().c_str());
+    times.print(stdout);
+    if (!overlays.empty()) std::printf("overlays in %s/\n", overlays.c_str());
+    if (skipped.empty()) return;
+    std::fprintf(
+        stderr,
+        "perch2 estimate: %zu image(s) skipped%s (not in %s; fix them and run again with --resume):\n",
+        skipped.size(), strict ? ", stopped at the first (--strict)" : "", out.c_str());
+    for (const std::string& s : skipped) std::fprintf(stderr, "  %s\n", s.c_str());
+  }
+};
+
 std::pair<int, int> parse_scene_range(const std::string& s) {
   try {
     const auto dash = s.find('-');
@@ -153,10 +187,7 @@ int estimate_command(int argc, char** argv) {
   std::fprintf(stderr, ", %zu objects, %s\n", runner.obj_ids().size(), runner.describe().c_str());
   std::signal(SIGINT, on_stop_signal);
   std::signal(SIGTERM, on_stop_signal);
-  cli::StageTimes times;
-  std::vector<std::string> skipped;
-  int estimated = 0, poses = 0, missing = 0, unusable = 0, requested = 0, seen = 0;
-  double seconds = 0, last_s = 0;
+  Tally tally;
   for (const auto& [scene_id, im_id] : todo) {
     if (g_stop_signal) break;
     try {
@@ -164,43 +195,25 @@ int estimate_command(int argc, char** argv) {
       const dataset::ImageResult r = runner.estimate(image);
       writer.write_image(scene_id, im_id, r.rows);  // appended and flushed now
       if (!overlays.empty()) write_overlay(runner, image, r, overlays);
-      times.add(r.stages);
-      poses += int(r.rows.size()), requested += r.requested, missing += r.missing, unusable += r.unusable;
-      seconds += r.seconds, last_s = r.seconds;
-      ++estimated;
+      tally.add(r);
     } catch (const dataset::ImageError& e) {  // this image only
-      skipped.push_back(e.what());
+      tally.skipped.push_back(e.what());
       std::fprintf(stderr, "\nperch2 estimate: skipped %s\n", e.what());
       if (strict) break;
     }
-    ++seen;
-    cli::print_progress(stderr, seen, int(todo.size()), estimated ? seconds / estimated : 0.0, last_s);
+    ++tally.seen;
+    cli::print_progress(stderr, tally.seen, int(todo.size()), tally.mean_seconds(), tally.last_s);
   }
-
-  std::printf("perch2 estimate: %d poses for %d requested instances in %d images -> %s\n", poses, requested,
-              estimated, out.c_str());
-  if (missing > 0) std::printf("  %d instance(s) not found\n", missing);
-  if (unusable > 0)
-    std::printf("  %d instance(s) skipped: too few valid depth readings inside the mask\n", unusable);
-  std::printf("per-stage wall-clock times (%s):\n", runner.describe().c_str());
-  times.print(stdout);
-  if (!overlays.empty()) std::printf("overlays in %s/\n", overlays.c_str());
-  if (!skipped.empty()) {
-    std::fprintf(stderr,
-                 "perch2 estimate: %zu image(s) skipped%s (not in %s; fix them and run again with "
-                 "--resume):\n",
-                 skipped.size(), strict ? ", stopped at the first (--strict)" : "", out.c_str());
-    for (const std::string& s : skipped) std::fprintf(stderr, "  %s\n", s.c_str());
-  }
-  if (g_stop_signal) {
+  tally.print(runner, out, overlays, strict);
+  if (g_stop_signal && tally.seen < int(todo.size())) {
     std::fprintf(stderr,
                  "perch2 estimate: interrupted by %s after %d of %zu images; %s holds every finished image "
                  "(%zu); run again with --resume to finish\n",
-                 g_stop_signal == SIGINT ? "SIGINT" : "SIGTERM", seen, todo.size(), out.c_str(),
+                 g_stop_signal == SIGINT ? "SIGINT" : "SIGTERM", tally.seen, todo.size(), out.c_str(),
                  writer.done().size());
     return 128 + g_stop_signal;
   }
-  if (!skipped.empty()) return strict ? 1 : 3;
+  if (!tally.skipped.empty()) return strict ? 1 : 3;
   return 0;
 }
 

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <optional>
+#include <set>
 
 #include "json_util.hpp"
 #include "perch2/io/image_io.hpp"
@@ -394,6 +395,18 @@ BopDataset::BopDataset(std::string root, DatasetOptions options) : root_(std::mo
     targets_ = parse_targets(targets_path_, scenes_, scene_problems, bad_images_, target_images_);
 }
 
+std::vector<std::pair<int, int>> run_images(const BopDataset& data, int first_scene, int last_scene) {
+  std::set<std::pair<int, int>> with_targets;
+  for (const auto& t : data.targets())
+    if (t.inst_count > 0) with_targets.insert({t.scene_id, t.im_id});
+  std::vector<std::pair<int, int>> out;
+  for (const auto& key : data.target_images())
+    if (key.first >= first_scene && key.first <= last_scene &&
+        (with_targets.count(key) || data.bad_image(key.first, key.second)))
+      out.push_back(key);
+  return out;
+}
+
 const ModelInfo& BopDataset::model_info(int obj_id) const {
   const auto it = models_info_.find(obj_id);
   if (it == models_info_.end())
@@ -444,18 +457,30 @@ const ImageInfo& BopDataset::info(int scene_id, int im_id) const {
   return scenes_.at(scene_id).at(im_id);
 }
 
-ImageFiles BopDataset::read_image_files(int scene_id, int im_id, const ImageLoadOptions& options) const {
+ImageFiles BopDataset::image_files(int scene_id, int im_id, const ImageLoadOptions& options) const {
   const ImageInfo& image = info(scene_id, im_id);
   const std::string dir = join(split_path_, bop_id(scene_id));
-  auto read = [](const std::string& path) { return FileBytes{path, io::read_file(path)}; };
   ImageFiles out;
-  if (options.depth) out.depth = read(join(join(dir, "depth"), bop_id(im_id) + ".png"));
-  if (options.rgb) out.rgb = read(rgb_path(dir, im_id));
+  if (options.depth) out.depth = FileBytes{join(join(dir, "depth"), bop_id(im_id) + ".png"), {}};
+  if (options.rgb) out.rgb = FileBytes{rgb_path(dir, im_id), {}};
   for (std::size_t g = 0; g < image.gt.size(); ++g) {
-    if (options.masks_visib) out.masks_visib.push_back(read(mask_path(dir, "mask_visib", im_id, int(g))));
-    if (options.masks) out.masks.push_back(read(mask_path(dir, "mask", im_id, int(g))));
+    if (options.masks_visib) out.masks_visib.push_back({mask_path(dir, "mask_visib", im_id, int(g)), {}});
+    if (options.masks) out.masks.push_back({mask_path(dir, "mask", im_id, int(g)), {}});
   }
   return out;
+}
+
+ImageFiles read_files(ImageFiles files) {
+  auto read = [](FileBytes& f) { f.bytes = io::read_file(f.path); };
+  if (files.depth) read(*files.depth);
+  if (files.rgb) read(*files.rgb);
+  for (FileBytes& f : files.masks_visib) read(f);
+  for (FileBytes& f : files.masks) read(f);
+  return files;
+}
+
+ImageFiles BopDataset::read_image_files(int scene_id, int im_id, const ImageLoadOptions& options) const {
+  return read_files(image_files(scene_id, im_id, options));
 }
 
 BopImage BopDataset::load_image(int scene_id, int im_id, const ImageLoadOptions& options) const {

@@ -70,6 +70,12 @@ void write_results_csv(std::ostream& out, const std::vector<PoseEstimate>& estim
   }
 }
 
+std::string format_results_csv(const std::vector<PoseEstimate>& estimates) {
+  std::ostringstream out;
+  write_results_csv(out, estimates, false);
+  return out.str();
+}
+
 void save_results_csv(const std::string& path, const std::vector<PoseEstimate>& estimates, bool append) {
   std::error_code ec;
   const bool empty = !append || !std::filesystem::exists(path) || std::filesystem::file_size(path, ec) == 0;
@@ -328,9 +334,7 @@ void ResultsWriter::write_image(int scene_id, int im_id, const std::vector<PoseE
   for (const auto& e : rows)
     if (e.scene_id != scene_id || e.im_id != im_id)
       throw InvalidInput(image_name(key), "given a row of " + image_name({e.scene_id, e.im_id}));
-  std::ostringstream text;
-  write_results_csv(text, rows, false);
-  append(csv_fd_, path_, text.str());
+  append(csv_fd_, path_, format_results_csv(rows));
   append(done_fd_, done_path(),
          std::to_string(scene_id) + "," + std::to_string(im_id) + "," + std::to_string(rows.size()) + "\n");
   done_[key] = int(rows.size());

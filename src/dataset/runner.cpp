@@ -188,12 +188,7 @@ BopRunner::BopRunner(BopRunner&&) noexcept = default;
 BopRunner& BopRunner::operator=(BopRunner&&) noexcept = default;
 
 std::vector<std::pair<int, int>> BopRunner::images(int first_scene, int last_scene) const {
-  std::vector<std::pair<int, int>> out;
-  for (const auto& key : impl_->data.target_images())
-    if (key.first >= first_scene && key.first <= last_scene &&
-        (impl_->targets.count(key) || impl_->data.bad_image(key.first, key.second)))
-      out.push_back(key);
-  return out;
+  return run_images(impl_->data, first_scene, last_scene);
 }
 
 const std::vector<Target>& BopRunner::targets(int scene_id, int im_id) const {
@@ -202,38 +197,55 @@ const std::vector<Target>& BopRunner::targets(int scene_id, int im_id) const {
   return it == impl_->targets.end() ? none : it->second;
 }
 
-ImageLoadOptions BopRunner::load_options() const {
+ImageLoadOptions load_options(const RunOptions& options) {
   ImageLoadOptions load;
-  load.masks_visib = impl_->options.mode == RunMode::SixDof && impl_->options.masks == "gt";
+  load.masks_visib = options.mode == RunMode::SixDof && options.masks == "gt";
   return load;
 }
 
-BopImage BopRunner::load_image(int scene_id, int im_id) const {
+ImageLoadOptions BopRunner::load_options() const {
+  return dataset::load_options(impl_->options);
+}
+
+namespace {
+/// fn() with perch2's input errors turned into the image's ImageError.
+template <class Fn>
+auto for_image(int scene_id, int im_id, Fn fn) {
   try {
-    return impl_->data.load_image(scene_id, im_id, load_options());
+    return fn();
   } catch (const FileError& e) {
     throw ImageError(scene_id, im_id, e.what());
   } catch (const InvalidInput& e) {
     throw ImageError(scene_id, im_id, e.what());
   }
+}
+}  // namespace
+
+BopImage BopRunner::load_image(int scene_id, int im_id) const {
+  return for_image(scene_id, im_id, [&] { return impl_->data.load_image(scene_id, im_id, load_options()); });
+}
+
+ImageFiles BopRunner::image_files(int scene_id, int im_id) const {
+  return for_image(scene_id, im_id, [&] { return impl_->data.image_files(scene_id, im_id, load_options()); });
 }
 
 ImageResult BopRunner::estimate(int scene_id, int im_id) const {
   return estimate(load_image(scene_id, im_id));
 }
 
+ImageResult BopRunner::estimate(int scene_id, int im_id, const ImageFiles& files) const {
+  return estimate(
+      for_image(scene_id, im_id, [&] { return decode_image(impl_->data.info(scene_id, im_id), files); }));
+}
+
 ImageResult BopRunner::estimate(const BopImage& image) const {
   const int scene_id = image.info.scene_id, im_id = image.info.im_id;
-  try {
+  return for_image(scene_id, im_id, [&] {
     ImageResult out = std::visit(
         [&](const auto& e) { return impl_->run(*e, image, targets(scene_id, im_id)); }, impl_->estimator);
     out.scene_id = scene_id, out.im_id = im_id;
     return out;
-  } catch (const FileError& e) {
-    throw ImageError(scene_id, im_id, e.what());
-  } catch (const InvalidInput& e) {
-    throw ImageError(scene_id, im_id, e.what());
-  }
+  });
 }
 
 const RunOptions& BopRunner::options() const {

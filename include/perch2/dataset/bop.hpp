@@ -117,6 +117,10 @@ struct ImageFiles {
   std::vector<FileBytes> masks;        ///< mask/IM_ID_GT_ID.png, one per info.gt entry
 };
 
+/// Reads the bytes of every file named in `files` (from BopDataset::image_files); FileError names a missing
+/// or unreadable one.
+ImageFiles read_files(ImageFiles files);
+
 /// Decodes an image's files (load_image() is read_image_files() + this): depth to metres with
 /// info.depth_scale_mm, masks to 0/1. FileError naming the file for bytes that are not a complete image of
 /// the right kind, or whose size disagrees with the camera or the other files; InvalidInput if masks are
@@ -177,8 +181,11 @@ class BopDataset {
 
   /// Reads the requested images of one (scene, image). FileError names a missing or broken file.
   BopImage load_image(int scene_id, int im_id, const ImageLoadOptions& options = {}) const;
-  /// The bytes of the requested files of one (scene, image), undecoded (see decode_image). FileError names
-  /// a missing or unreadable file.
+  /// Which files load_image() reads for these options: their paths, bytes empty (e.g. for a process that
+  /// reads them and sends their bytes to one that cannot). FileError/InvalidInput as info().
+  ImageFiles image_files(int scene_id, int im_id, const ImageLoadOptions& options = {}) const;
+  /// image_files() with their bytes read, undecoded (see decode_image). FileError names a missing or
+  /// unreadable file.
   ImageFiles read_image_files(int scene_id, int im_id, const ImageLoadOptions& options = {}) const;
 
  private:
@@ -196,6 +203,12 @@ class BopDataset {
 std::map<std::pair<int, int>, std::vector<Target>> targets_by_image(const std::vector<Target>& targets,
                                                                     int first_scene = 0,
                                                                     int last_scene = 1 << 30);
+
+/// The images a run over scenes [first_scene, last_scene] estimates, (scene_id, im_id) ascending: those the
+/// targets file lists with at least one instance, and the bad images it lists (a run reports them).
+/// BopRunner::images() is this; a driver that holds no models can list them too.
+std::vector<std::pair<int, int>> run_images(const BopDataset& data, int first_scene = 0,
+                                            int last_scene = 1 << 30);
 
 /// Zero-padded 6-digit id, as BOP names folders and files ("000042").
 std::string bop_id(int id);

@@ -36,6 +36,9 @@ inline constexpr const char* kBopResultsHeader = "scene_id,im_id,obj_id,score,R,
 /// (float precision).
 void write_results_csv(std::ostream& out, const std::vector<PoseEstimate>& estimates, bool header = true);
 
+/// The rows as the CSV lines write_results_csv writes (each ending in '\n'; no header).
+std::string format_results_csv(const std::vector<PoseEstimate>& estimates);
+
 /// Writes a results file; with append = true adds rows to an existing file (header only if it is empty or
 /// new), so shards written by different runs concatenate. FileError if it cannot be written.
 void save_results_csv(const std::string& path, const std::vector<PoseEstimate>& estimates,

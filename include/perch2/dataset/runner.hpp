@@ -14,7 +14,9 @@
 //     }
 //   }
 //
-// The image can also come from memory (decode_image, perch2/dataset/bop.hpp): runner.estimate(image).
+// The image can also come from memory: a process that reads the dataset sends the bytes of
+// runner.image_files(scene, im) (read_files, perch2/dataset/bop.hpp); one that cannot (the same dataset's
+// JSON and models, without its images) calls runner.estimate(scene, im, files).
 #pragma once
 
 #include <memory>
@@ -66,6 +68,10 @@ struct RunOptions {
   int min_instance_points = 10;
 };
 
+/// What a run with these options reads of each image (rgb and depth; 6-DoF with "gt" masks: mask_visib
+/// too), e.g. for BopDataset::read_image_files() in a driver that holds no runner.
+PERCH2_API ImageLoadOptions load_options(const RunOptions& options);
+
 /// One image's estimate.
 struct ImageResult {
   int scene_id = 0, im_id = 0;
@@ -105,19 +111,25 @@ class PERCH2_API BopRunner {
   BopRunner(BopRunner&&) noexcept;
   BopRunner& operator=(BopRunner&&) noexcept;
 
-  /// The images with targets, (scene_id, im_id) ascending, scenes in [first_scene, last_scene]; images the
-  /// targets file lists whose JSON entries are broken are included (estimate() reports them).
+  /// run_images(dataset, first_scene, last_scene): the images with targets, (scene_id, im_id) ascending;
+  /// images the targets file lists whose JSON entries are broken are included (estimate() reports them).
   std::vector<std::pair<int, int>> images(int first_scene = 0, int last_scene = 1 << 30) const;
   /// The image's targets (empty if it has none).
   const std::vector<Target>& targets(int scene_id, int im_id) const;
 
-  /// What estimate() needs of an image (rgb and depth; 6-DoF "gt": mask_visib too).
+  /// What estimate() needs of an image: load_options(options()).
   ImageLoadOptions load_options() const;
 
   /// Reads one image of the dataset as estimate() needs it; ImageError if any of its files is bad.
   BopImage load_image(int scene_id, int im_id) const;
   /// load_image() + estimate(image). ImageError if anything about this image is bad.
   ImageResult estimate(int scene_id, int im_id) const;
+  /// The files estimate() reads for the image (paths; bytes empty: read_files() fills them). ImageError if
+  /// the image is bad (its JSON entry).
+  ImageFiles image_files(int scene_id, int im_id) const;
+  /// Decodes the image from its files' bytes (decode_image with the dataset's ImageInfo) and estimates it;
+  /// ImageError naming the file for bad bytes, as estimate(scene_id, im_id).
+  ImageResult estimate(int scene_id, int im_id, const ImageFiles& files) const;
   /// Estimates an image already in memory (e.g. from decode_image) with its targets from the dataset.
   ImageResult estimate(const BopImage& image) const;
 
