@@ -6,6 +6,9 @@
 #include <unordered_map>
 
 #include "perch2_docs.hpp"  // generated at build time from the headers
+#if PERCH2_PY_HAVE_CUDA
+#include "perch2/cuda/device.hpp"
+#endif
 
 namespace perch2_py {
 
@@ -293,6 +296,9 @@ BackendId parse_backend(const std::string& name) {
   if (name == "thrust_omp") return BackendId::ThrustOmp;
   if (name == "cuda") {
 #if PERCH2_PY_HAVE_CUDA
+    // Without a usable GPU the CUDA runtime would fail on the first allocation (a MemoryError): say why here.
+    if (perch2::cuda::device_count() == 0)
+      throw InvalidInput("backend", "'cuda': " + perch2::cuda::device_summary());
     return BackendId::Cuda;
 #else
     throw InvalidInput("backend",

@@ -110,9 +110,14 @@ SixDofInstance make_instance(int model, nb::handle mask, nb::handle box, const s
   SixDofInstance in;
   in.model = model;
   in.mask = mask_from(mask, who + " mask");
-  if (!box.is_none()) {
-    const std::vector<std::int32_t> b = int_vector(box, who + " box (x, y, w, h)", 4);
-    in.box_xywh = {b[0], b[1], b[2], b[3]};
+  if (!box.is_none()) {  // integers, or a detector's float box (rounded as the BOP detection reader does)
+    std::size_t n = 0;
+    const std::vector<float> b = float_rows(box, who + " box (x, y, w, h)", 4, &n, true);
+    if (n != 1) throw InvalidInput(who + " box (x, y, w, h)", "must be 4 numbers");
+    for (float v : b)
+      if (!std::isfinite(v)) throw InvalidInput(who + " box (x, y, w, h)", "must be finite");
+    in.box_xywh = {int(std::lround(b[0])), int(std::lround(b[1])), int(std::lround(b[2])),
+                   int(std::lround(b[3]))};
   }
   return in;
 }

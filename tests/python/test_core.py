@@ -160,6 +160,15 @@ def test_unknown_and_unbuilt_backends_raise_invalid_input():
     if "cuda" not in perch2.backends():
         with pytest.raises(perch2.InvalidInput, match="perch2 was built without CUDA"):
             perch2.SixDofEstimator([mesh], backend="cuda")
+    else:  # an nvcc build: without a visible GPU, the reason (CUDA_VISIBLE_DEVICES= hides every device)
+        import subprocess
+        import sys
+
+        code = "import perch2, numpy as np\ntry:\n    perch2.Renderer([perch2.Mesh(np.eye(3), [[0, 1, 2]])], backend='cuda')\n" \
+               "except perch2.InvalidInput as e:\n    print(e)"
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env=dict(__import__("os").environ, CUDA_VISIBLE_DEVICES="")).stdout
+        assert "backend: 'cuda': no CUDA device visible" in out, out
     assert {"cpu", "thrust_omp"} <= set(perch2.backends())
 
 

@@ -138,7 +138,7 @@ def test_sixdof_bad_instances_raise_invalid_input(dataset_6dof):
         est.estimate(depth, rgb, K, [(0, np.ones((48, 64), bool), None)])
     with pytest.raises(perch2.InvalidInput, match=r"instances\[0\] mask: must be a bool or uint8 mask"):
         est.estimate(depth, rgb, K, [(0, np.ones(depth.shape, np.float32), None)])
-    with pytest.raises(perch2.InvalidInput, match=r"instances\[0\] box \(x, y, w, h\): must have 4 entries"):
+    with pytest.raises(perch2.InvalidInput, match=r"instances\[0\] box \(x, y, w, h\): must have shape \(n, 4\)"):
         est.estimate(depth, rgb, K, [(0, instances[0][1], (1, 2, 3))])
     with pytest.raises(perch2.InvalidInput, match=r"instances\[0\]: must be a perch2.SixDofInstance"):
         est.estimate(depth, rgb, K, [(0,)])
