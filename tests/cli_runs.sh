@@ -4,8 +4,9 @@
 #     scene_gt.json entry: only that image is missing, the other rows are the clean run's, exit status 3, the
 #     summary names the file and the reason; --strict stops at the first (exit 1); an unwritable output or
 #     no models_info.json fails at once (exit 1);
-#   - a run killed (SIGKILL) after its first image, with a torn line appended, then --resume: the torn line
-#     is reported and dropped and the rows are the clean run's;
+#   - a second run on the same output while one runs fails (exit 1); a run killed (SIGKILL) after its first
+#     image, with a torn line appended, then --resume: the torn line is reported and dropped and the rows are
+#     the clean run's;
 #   - SIGINT / SIGTERM during a run: exit 130 / 143 with a message, a CSV of finished images, --resume
 #     completes it.
 # Rows are compared on every column but time.
@@ -39,18 +40,19 @@ expect() {  # expect RC FILE_PATTERN...: exit status and messages of the last ru
   shift
   for p in "$@"; do grep -q -- "$p" <<<"$log" || fail "no '$p' in the output:"$'\n'"$log"; done
 }
-# Waits until FILE.done records N images, then sends SIGNAL to PID; fails if the run ends first.
-kill_after() {
-  local pid=$1 file=$2 n=$3 sig=$4
+# Waits until FILE.done records N images of the run PID; fails if the run ends first.
+wait_done() {
+  local pid=$1 file=$2 n=$3
   for _ in $(seq 1 3000); do
-    if [ -f "$file.done" ] && [ "$(grep -vc '^scene_id' "$file.done")" -ge "$n" ]; then
-      kill -"$sig" "$pid"
-      return
-    fi
+    [ -s "$file.done" ] && [ "$(grep -vc '^scene_id' "$file.done")" -ge "$n" ] && return
     kill -0 "$pid" 2>/dev/null || fail "the run ended before its image $n was done"
     sleep 0.02
   done
   fail "no image done within 60 s"
+}
+kill_after() {  # kill_after PID FILE N SIGNAL
+  wait_done "$1" "$2" "$3"
+  kill -"$4" "$1"
 }
 
 "$perch2" generate --mode "$mode" --scenes 1 --images-per-scene 3 --objects "$objects" --seed 5 --out data >/dev/null
@@ -97,8 +99,12 @@ expect 1 "models_info.json"
 
 # Killed after its first image (plus a torn line, as a kill during a write would leave), then resumed.
 "$perch2" estimate --mode "$mode" --backend cpu --dataset data --out killed.csv >killed.log 2>&1 &
-kill_after $! killed.csv 1 KILL
-wait $! || true
+pid=$!
+wait_done $pid killed.csv 1
+run second.log --dataset data --out killed.csv --resume  # a second writer of the same file while it runs
+expect 1 "killed.csv: is being written by another process"
+kill -KILL $pid
+wait $pid || true
 [ "$(images_in killed.csv)" -lt 3 ] || fail "SIGKILL: the run was not stopped in the middle"
 comm -23 <(rows killed.csv) <(rows clean.csv) | grep -q . && fail "SIGKILL: rows not in the clean run"
 printf '1,2,7,0.5,1 0 0 0 1' >>killed.csv

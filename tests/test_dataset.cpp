@@ -521,6 +521,14 @@ TEST_CASE(
     CHECK(w.resume_notes().back().find(".done not found") != std::string::npos);
   }
   CHECK(completed_images(path).size() == 3);  // and the writer recorded them
+  // One writer at a time: a second one (another run on the same output) fails, naming the file.
+  {
+    ResultsWriter first(path, {true, false});
+    CHECK(error_of([&] {
+            ResultsWriter second(path, {true, false});
+          }) == path + ": is being written by another process (its .done file is locked)");
+  }
+  { ResultsWriter again(path, {true, false}); }  // free once the first is gone
   // A fresh (non-resume) writer replaces the file; resume of a missing file starts one.
   { ResultsWriter w(path, {}); }
   CHECK(load_results_csv(path).empty());

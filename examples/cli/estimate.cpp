@@ -169,15 +169,16 @@ int estimate_command(int argc, char** argv) {
     throw FileError(dataset_dir, "has no targets file (test_targets_bop19.json or _bop24.json)");
   for (const std::string& w : data.warnings())
     std::fprintf(stderr, "perch2 estimate: warning: %s\n", w.c_str());
-  const dataset::BopRunner runner(data, run);
-  const auto images = runner.images(first, last);
+  const auto images = dataset::run_images(data, first, last);
   if (images.empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
-  if (!overlays.empty()) std::filesystem::create_directories(overlays);
-  dataset::ResultsWriter writer(out, {resume, false});  // fails here if the output cannot be written
+  // Before the models load: an unwritable output or another run writing it fails at once.
+  dataset::ResultsWriter writer(out, {resume, false});
   for (const std::string& note : writer.resume_notes())
     std::fprintf(stderr, "perch2 estimate: %s\n", note.c_str());
+  const dataset::BopRunner runner(data, run);
+  if (!overlays.empty()) std::filesystem::create_directories(overlays);
   std::vector<std::pair<int, int>> todo;
   for (const auto& key : images)
     if (!writer.is_done(key.first, key.second)) todo.push_back(key);

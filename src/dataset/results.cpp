@@ -1,6 +1,7 @@
 #include "perch2/dataset/results.hpp"
 
 #include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -203,6 +204,13 @@ std::map<ImageKey, int> read_done(const std::string& path, std::vector<std::stri
   return out;
 }
 
+/// PATH.done exists and is not empty (a writer's lock creates it empty before writing its header).
+bool has_done_record(const std::string& done_path) {
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(done_path, ec);
+  return !ec && size > 0;
+}
+
 std::map<ImageKey, int> count_rows(const std::vector<std::pair<PoseEstimate, std::size_t>>& rows) {
   std::map<ImageKey, int> out;
   for (const auto& [e, line] : rows) ++out[{e.scene_id, e.im_id}];
@@ -253,6 +261,15 @@ int open_append(const std::string& path) {
   return fd;
 }
 
+/// An exclusive advisory lock on the .done file: a second writer of the same results (another run, a
+/// resume started twice) fails instead of appending beside the first. Where the file system has no locks
+/// (ENOLCK, EOPNOTSUPP) the writer goes on unlocked.
+void lock_or_throw(int fd, const std::string& csv_path) {
+  if (::flock(fd, LOCK_EX | LOCK_NB) == 0 || (errno != EWOULDBLOCK && errno != EINTR)) return;
+  ::close(fd);
+  throw FileError(csv_path, "is being written by another process (its .done file is locked)");
+}
+
 }  // namespace
 
 std::vector<PoseEstimate> load_results_csv(const std::string& path, bool drop_torn_last_line,
@@ -270,14 +287,28 @@ std::map<std::pair<int, int>, int> completed_images(const std::string& path) {
   const auto lines = read_lines(path, last_complete);
   const auto rows = count_rows(parse_results(path, lines, last_complete, true, nullptr));
   const std::string done = path + ".done";
-  if (!std::filesystem::exists(done)) return rows;
+  if (!has_done_record(done)) return rows;
   return complete_of(read_done(done), rows);
 }
 
 ResultsWriter::ResultsWriter(std::string path, Options options) : path_(std::move(path)), options_(options) {
+  const int lock_fd = ::open(done_path().c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (lock_fd < 0)
+    throw FileError(path_, "cannot be written (" + done_path() + ": " + std::strerror(errno) + ")");
+  lock_or_throw(lock_fd, path_);
+  try {
+    start(options_.resume);
+  } catch (...) {
+    ::close(lock_fd);
+    throw;
+  }
+  ::close(lock_fd);  // the lock moved to the new .done file (start() renamed a new one over this one)
+}
+
+void ResultsWriter::start(bool resume) {
   namespace fs = std::filesystem;
   std::string csv = std::string(kBopResultsHeader) + "\n";
-  if (options_.resume && fs::exists(path_)) {
+  if (resume && fs::exists(path_)) {
     bool last_complete = true;
     const auto lines = read_lines(path_, last_complete);
     int torn = 0;
@@ -286,11 +317,12 @@ ResultsWriter::ResultsWriter(std::string path, Options options) : path_(std::mov
       notes_.push_back(path_ + ":" + std::to_string(torn) + ": dropped: " + kTorn + "'" +
                        lines[std::size_t(torn - 1)] + "'");
     const auto counts = count_rows(rows);
-    if (fs::exists(done_path())) {
+    if (has_done_record(done_path())) {
       done_ = complete_of(read_done(done_path(), &notes_), counts);
     } else {
       done_ = counts;
-      notes_.push_back(done_path() + " not found: every image with rows in " + path_ + " counts as done");
+      notes_.push_back(done_path() + " not found (or empty): every image with rows in " + path_ +
+                       " counts as done");
     }
     std::size_t kept_rows = 0;
     for (const auto& [e, line] : rows) {
@@ -307,8 +339,9 @@ ResultsWriter::ResultsWriter(std::string path, Options options) : path_(std::mov
   // Both files are rewritten whole (a fresh run, or a resumed one without its dropped lines), then appended.
   replace_file(path_, csv);
   replace_file(done_path(), done_text(done_));
-  csv_fd_ = open_append(path_);
   done_fd_ = open_append(done_path());
+  lock_or_throw(done_fd_, path_);
+  csv_fd_ = open_append(path_);
 }
 
 ResultsWriter::~ResultsWriter() {

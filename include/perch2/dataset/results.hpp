@@ -54,9 +54,9 @@ std::vector<PoseEstimate> load_results_csv(const std::string& path, bool drop_to
                                            int* torn_line = nullptr);
 
 /// The images a results file holds in full, with their row counts: those ResultsWriter recorded in
-/// PATH.done (see there) whose rows are all in PATH; without PATH.done (a file from another tool, or
-/// concatenated shards) every image with rows in PATH, a torn last line dropped. An image with zero rows
-/// counts only when PATH.done lists it.
+/// PATH.done (see there) whose rows are all in PATH; without PATH.done, or with an empty one (a file from
+/// another tool, or concatenated shards) every image with rows in PATH, a torn last line dropped. An image
+/// with zero rows counts only when PATH.done lists it.
 std::map<std::pair<int, int>, int> completed_images(const std::string& path);
 
 /// Appends each finished image's rows to a BOP results CSV at once (one write(2) of the image's lines, then
@@ -78,7 +78,8 @@ class ResultsWriter {
     bool fsync = false;
   };
 
-  /// Opens (creates) PATH and PATH.done; FileError if they cannot be read, written or (resume) parsed.
+  /// Opens (creates) PATH and PATH.done; FileError if they cannot be read, written or (resume) parsed, or
+  /// if another writer has them open (an advisory flock(2) on PATH.done, held while the writer lives).
   explicit ResultsWriter(std::string path, Options options);
   ResultsWriter(std::string path) : ResultsWriter(std::move(path), Options{}) {}
   ~ResultsWriter();
@@ -100,6 +101,7 @@ class ResultsWriter {
   std::string done_path() const { return path_ + ".done"; }
 
  private:
+  void start(bool resume);  // reads (resume) and rewrites both files, opens them for appending
   void append(int fd, const std::string& path, const std::string& bytes) const;
   std::string path_;
   Options options_;
