@@ -131,6 +131,10 @@ case "$cmd" in
     # The Python call overhead, when the build has the Python package (./run.sh test configures it).
     if [ -x "$VENV/bin/python" ] && ls build/python/perch2/_perch2*.so >/dev/null 2>&1; then
       PYTHONPATH=build/python "$VENV/bin/python" bench/bench_python.py
+      # perch2.distributed on a local Ray instance, when the venv has Ray (./run.sh test installs it).
+      if "$VENV/bin/python" -c "import ray" 2>/dev/null; then
+        PYTHONPATH=build/python "$VENV/bin/python" bench/bench_distributed.py
+      fi
     fi
     ;;
   cuda)

@@ -30,10 +30,12 @@ other's files and write the same rows.
 from __future__ import annotations
 
 import argparse
+import atexit
 import dataclasses
 import os
 import pathlib
 import resource
+import shutil
 import signal
 import sys
 import tempfile
@@ -104,6 +106,7 @@ def _pack_dataset(root: str, config: RunConfig) -> Dict[str, bytes]:
 
 def _unpack_dataset(files: Dict[str, bytes], config: RunConfig) -> Tuple[str, RunConfig]:
     root = pathlib.Path(tempfile.mkdtemp(prefix="perch2_dataset_"))
+    atexit.register(shutil.rmtree, root, ignore_errors=True)  # the worker's copy goes with its process
     for rel, data in files.items():
         if rel == "__masks__":
             continue
@@ -169,6 +172,8 @@ class RunSummary:
     worker_seconds: float = 0  #: sum of the workers' wall time per image (estimate + decode + Ray's call)
     estimate_seconds: float = 0  #: sum of the estimators' own time per image
     wall_seconds: float = 0  #: the driver's wall time from the first task to the last write
+    startup_seconds: float = 0  #: mean over workers: run start to the worker's first image (Ray, model loading)
+    busy_seconds: float = 0  #: sum over workers: first image started to last image returned (driver's clock)
     restarts: int = 0  #: worker processes that died and were restarted
     interrupted: bool = False
 
@@ -247,6 +252,8 @@ def run(dataset: str, out: str, config: RunConfig = RunConfig(), *, workers: int
     sent: Dict[int, List["ray.ObjectRef"]] = {a: [] for a in range(len(actors))}  # per actor, in order
     show = _Progress(progress, summary.total, summary.resumed)
     start = time.perf_counter()
+    first_start: Dict[int, float] = {}  # actor -> when its first image started (driver's clock)
+    last_return: Dict[int, float] = {}  # actor -> when its last image came back
 
     load = perch2.load_options(config.run_options())  # what a worker's runner reads of an image
 
@@ -301,6 +308,9 @@ def run(dataset: str, out: str, config: RunConfig = RunConfig(), *, workers: int
             if strict:
                 return False
         elif not writer.is_done(*key):  # exactly once, whatever came back twice
+            now = time.perf_counter()
+            first_start.setdefault(a, now - result["wall"])
+            last_return[a] = now
             writer.write_image(key[0], key[1], result["rows"])
             summary.done += 1
             summary.per_worker[a] = summary.per_worker.get(a, 0) + 1
@@ -350,6 +360,9 @@ def run(dataset: str, out: str, config: RunConfig = RunConfig(), *, workers: int
         summary.interrupted = True  # every written image is complete; resume picks up the rest
     finally:
         summary.wall_seconds = time.perf_counter() - start
+        if first_start:
+            summary.startup_seconds = sum(t - start for t in first_start.values()) / len(first_start)
+            summary.busy_seconds = sum(last_return[a] - t for a, t in first_start.items())
         for actor in actors:
             ray.kill(actor)
     return summary
@@ -371,6 +384,10 @@ def print_summary(summary: RunSummary, out=sys.stdout):
         out.write(f"  worker time per image {summary.worker_seconds / n:.3f} s, of which outside the estimator "
                   f"{over / n * 1e3:.1f} ms ({100 * over / max(total, 1e-9):.1f}%); "
                   f"{n / max(summary.wall_seconds, 1e-9):.2f} images/s\n")
+        steady = summary.busy_seconds - summary.estimate_seconds
+        out.write(f"  worker start-up {summary.startup_seconds:.1f} s (Ray, models loaded); while busy, "
+                  f"{steady / n * 1e3:.1f} ms per image outside the estimator "
+                  f"({100 * steady / max(summary.estimate_seconds, 1e-9):.1f}%: decoding, Python, Ray)\n")
     for key, why in sorted(summary.skipped.items()):
         out.write(f"  skipped scene {key[0]} image {key[1]}: {why}\n")
     for key, why in sorted(summary.failed.items()):
