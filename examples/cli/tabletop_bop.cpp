@@ -42,15 +42,15 @@ const char* variant_name(SearchVariant v) {
 
 void StageTimes::add(const TabletopTimings& t) {
   sum.table += t.table, sum.observed += t.observed, sum.hypotheses += t.hypotheses, sum.render += t.render;
-  sum.refine += t.refine, sum.cost += t.cost, sum.select += t.select, sum.total += t.total;
+  sum.refine += t.refine, sum.cost += t.cost, sum.select += t.select, sum.yaw += t.yaw, sum.total += t.total;
   ++images;
 }
 
 void StageTimes::print(std::FILE* out, const char* indent) const {
-  const std::pair<const char*, double> stages[] = {{"table", sum.table},           {"observed", sum.observed},
-                                                   {"hypotheses", sum.hypotheses}, {"render", sum.render},
-                                                   {"refine", sum.refine},         {"cost", sum.cost},
-                                                   {"select", sum.select},         {"total", sum.total}};
+  const std::pair<const char*, double> stages[] = {
+      {"table", sum.table},   {"observed", sum.observed}, {"hypotheses", sum.hypotheses},
+      {"render", sum.render}, {"refine", sum.refine},     {"cost", sum.cost},
+      {"select", sum.select}, {"yaw", sum.yaw},           {"total", sum.total}};
   const double n = std::max(images, 1);
   std::fprintf(out, "%s%-11s %10s %12s %7s\n", indent, "stage", "total s", "s / image", "share");
   for (const auto& [name, s] : stages)
