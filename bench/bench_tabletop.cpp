@@ -12,8 +12,10 @@
 //                       [--dataset BOP_DIR (instead of generating: e.g. `perch2 generate --seed 77`'s)]
 //                       [--yaw-search 0|1 (1; TabletopSettings::yaw_search.enabled of the RGB-D variants)]
 //                       [--yaw-sweep N] [--yaw-step RAD] [--yaw-levels N] [--yaw-shift M] [--yaw-stride S]
+//                       [--yaw-tau T] [--yaw-starts N] [--yaw-sweep-stride S] [--yaw-moves N]
 //                       (yaw_search.turns.sweep_turns, .rotation_step_rad, .levels, translation_step_m,
-//                       stride; default: the library's)
+//                       stride, cost.tau_c, turns.sweep_starts, sweep_stride, turns.moves_per_level;
+//                       default: the library's)
 #include <omp.h>
 
 #include <cstdio>
@@ -75,12 +77,17 @@ Options parse(int argc, char** argv) {
       if (v != "0" && v != "1") throw InvalidInput("--yaw-search", "must be 0 or 1, not '" + v + "'");
       o.yaw_search = v == "1";
     } else if (a == "--yaw-sweep" || a == "--yaw-step" || a == "--yaw-levels" || a == "--yaw-shift" ||
-               a == "--yaw-stride") {
+               a == "--yaw-stride" || a == "--yaw-tau" || a == "--yaw-starts" || a == "--yaw-sweep-stride" ||
+               a == "--yaw-moves") {
       if (a == "--yaw-sweep") o.yaw.turns.sweep_turns = std::stoi(v);
       if (a == "--yaw-step") o.yaw.turns.rotation_step_rad = std::stof(v);
       if (a == "--yaw-levels") o.yaw.turns.levels = std::stoi(v);
       if (a == "--yaw-shift") o.yaw.translation_step_m = std::stof(v);
       if (a == "--yaw-stride") o.yaw.stride = std::stoi(v);
+      if (a == "--yaw-tau") o.yaw.cost.tau_c = std::stof(v);
+      if (a == "--yaw-starts") o.yaw.turns.sweep_starts = std::stoi(v);
+      if (a == "--yaw-sweep-stride") o.yaw.sweep_stride = std::stoi(v);
+      if (a == "--yaw-moves") o.yaw.turns.moves_per_level = std::stoi(v);
       o.yaw_args += " " + a + " " + v;
     } else if (a != "--variants" && a != "--backend") {
       throw InvalidInput(a,
@@ -129,7 +136,13 @@ void run(const dataset::BopDataset& data, SearchVariant v, dataset::BackendKind 
   std::vector<dataset::PoseEstimate> rows;
   int done = 0;
   for (const auto& [scene_id, im_id] : images) {
-    const dataset::ImageResult e = runner.estimate(scene_id, im_id);
+    dataset::ImageResult e;
+    try {
+      e = runner.estimate(scene_id, im_id);
+    } catch (const dataset::ImageError& err) {  // e.g. no table plane found: its targets count as misses
+      std::fprintf(stderr, "\n  skipped: %s\n", err.what());
+      continue;
+    }
     rows.insert(rows.end(), e.rows.begin(), e.rows.end());
     times.add(e.tabletop->timings);
     ++done;  // before the call: its arguments' evaluation order is unspecified

@@ -60,6 +60,39 @@ TEST_CASE("climb_turns: the sweep reaches a far minimum, the levels home in on i
   CHECK(std::abs(start[0][0] - best[0]) > 1.f);
 }
 
+TEST_CASE(
+    "climb_turns: with sweep_starts, a narrow deep minimum beats a wide shallow one the sweep prefers") {
+  // A narrow well at 2 rad (depth 1) and a wide one at -1.2 rad (depth 0.6): the sweep's samples (every
+  // 45 deg from 0) score best near the wide one, but a sample lies inside the narrow one's basin.
+  auto well = [](float a, float centre, float width) {
+    const float d = std::remainder(a - centre, 6.2831853f) / width;
+    return std::exp(-d * d);
+  };
+  auto score = [&](const std::vector<Angles>& poses) {
+    std::vector<CostBreakdown> c;
+    for (const auto& p : poses) {
+      CostBreakdown b;
+      const float d = 1e6f * (1.f - well(p[0], 2.f, 0.25f) - 0.6f * well(p[0], -1.2f, 0.8f));
+      b.rendered_depth_outliers = int(std::lround(d));
+      b.observed_depth_outliers = int(std::lround(0.5f * d));
+      b.total = float(b.rendered_depth_outliers + b.observed_depth_outliers);
+      c.push_back(b);
+    }
+    return c;
+  };
+  TurnSchedule s;
+  s.rotation_step_rad = 0.2f, s.levels = 5, s.moves_per_level = 3, s.sweep_turns = 8;
+  std::vector<Angles> one{{0.f, 0.f}}, three{{0.f, 0.f}};
+  climb_turns(one, 1, 1, s, turn, score);
+  CHECK(std::abs(std::remainder(one[0][0] + 1.2f, 6.2831853f)) < 0.05f);
+  s.sweep_starts = 3;
+  std::size_t candidates = 0;
+  const auto c = climb_turns(three, 1, 1, s, turn, score, &candidates);
+  CHECK(std::abs(std::remainder(three[0][0] - 2.f, 6.2831853f)) < 0.05f);
+  CHECK(c[0].total == score(three)[0].total);
+  CHECK(candidates >= 7 + 3 * 5 * 2);  // the sweep, then every level of every start
+}
+
 TEST_CASE("climb_turns: a turn that trades one term for the other is not taken with require_both_terms") {
   // The total falls towards 1 rad, but the observed term rises: a trade, not a better fit.
   auto score = [](const std::vector<Angles>& poses) {
@@ -89,11 +122,12 @@ TEST_CASE("climb_turns: bad schedules are rejected naming the setting") {
   CHECK_THROWS_WITH_AS(validate(s, "X.turns"), doctest::Contains("X.turns.rotation_step_rad"), InvalidInput);
   s.rotation_step_rad = std::nanf("");
   CHECK_THROWS_AS(validate(s, "X.turns"), InvalidInput);
-  for (auto bad : {+[](TurnSchedule& t) { t.levels = -1; }, +[](TurnSchedule& t) { t.moves_per_level = -1; },
-                   +[](TurnSchedule& t) { t.sweep_turns = -2; }}) {
+  for (auto bad :
+       {+[](TurnSchedule& t) { t.levels = -1; }, +[](TurnSchedule& t) { t.moves_per_level = -1; },
+        +[](TurnSchedule& t) { t.sweep_turns = -2; }, +[](TurnSchedule& t) { t.sweep_starts = 0; }}) {
     TurnSchedule t;
     bad(t);
-    CHECK_THROWS_WITH_AS(validate(t, "X.turns"), doctest::Contains("must be >= 0"), InvalidInput);
+    CHECK_THROWS_WITH_AS(validate(t, "X.turns"), doctest::Contains("must be >= "), InvalidInput);
   }
   CHECK_NOTHROW(validate(TurnSchedule{}, "X.turns"));
 }

@@ -754,6 +754,10 @@ TEST_CASE("the yaw search's bad settings are rejected naming the setting") {
                        doctest::Contains("yaw_search.turns"), InvalidInput);
   CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.stride = 0; }),
                        doctest::Contains("yaw_search.stride"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.sweep_stride = 0; }),
+                       doctest::Contains("yaw_search.sweep_stride"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.sweep_starts = 0; }),
+                       doctest::Contains("yaw_search.turns.sweep_starts"), InvalidInput);
   CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.translation_step_m = -0.001f; }),
                        doctest::Contains("yaw_search.translation_step_m"), InvalidInput);
   CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.translation_step_m = INFINITY; }),

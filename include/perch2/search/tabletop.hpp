@@ -124,19 +124,25 @@ struct YawSearchSettings {
   bool enabled = true;  ///< false: the selected yaws are returned as they are (the paper's search)
   /// Sweep: 72 turns 5 deg apart (the nearest-colour cost's basin about the right yaw is only ~5 deg
   /// wide on a 10 cm label seen at 1 m, and a label can be seen from the wrong side), then turns of
-  /// +-0.04 rad halving over 3 levels (down to 0.01 rad, ~0.6 deg).
+  /// +-0.04 rad halving over 3 levels (down to 0.01 rad, ~0.6 deg), climbed from the selected yaw and the
+  /// sweep's best 2 others: a bottle's label and its back differ in a few letters, and the sweep's
+  /// samples, up to 2.5 deg off, can rank the back first.
   TurnSchedule turns = [] {
     TurnSchedule t;
     t.rotation_step_rad = 0.04f;
     t.levels = 3;
     t.moves_per_level = 3;
     t.sweep_turns = 72;
+    t.sweep_starts = 3;
     return t;
   }();
   /// The levels also move each pose by +-translation_step_m in x and y (halving with the turn step): the
   /// colour test sees a label a millimetre off, which is about what ICP leaves. 0: turns only (>= 0).
   float translation_step_m = 0.001f;
   int stride = 2;  ///< render stride of the turned poses (>= 1)
+  /// Render stride of the sweep's turns, which only rank each other to choose the climbs' starts
+  /// (turns.sweep_starts > 1; >= 1): a quarter of the points at 4.
+  int sweep_stride = 4;
   /// The colour test of the nearest neighbour (ColorRule::Nearest) sees what AnyNeighbour tolerates.
   CostSettings cost = [] {
     CostSettings c;
@@ -580,6 +586,8 @@ class TabletopEstimator {
       throw InvalidInput("TabletopSettings", "margins and tolerances must be >= 0");
     perch2::validate(s.yaw_search.turns, "TabletopSettings::yaw_search.turns");
     if (s.yaw_search.stride < 1) throw InvalidInput("TabletopSettings::yaw_search.stride", "must be >= 1");
+    if (s.yaw_search.sweep_stride < 1)
+      throw InvalidInput("TabletopSettings::yaw_search.sweep_stride", "must be >= 1");
     if (!(s.yaw_search.translation_step_m >= 0 && std::isfinite(s.yaw_search.translation_step_m)))
       throw InvalidInput("TabletopSettings::yaw_search.translation_step_m", "must be finite and >= 0");
     frame.validate("tabletop frame");
@@ -814,11 +822,16 @@ class TabletopEstimator {
         (axis == 1 ? c.x : c.y) += angle_rad * metres_per_rad;
       return c;
     };
-    auto cost = [&](const std::vector<Candidate>& c) {
-      return score(f, c, render(f, c, ys.stride, occ, result.timings), ys.cost, result.timings);
+    auto costs_at = [&](const std::vector<Candidate>& c, int stride) {
+      return score(f, c, render(f, c, stride, occ, result.timings), ys.cost, result.timings);
     };
+    auto cost = [&](const std::vector<Candidate>& c) { return costs_at(c, ys.stride); };
     const int axes = ys.translation_step_m > 0 ? 3 : 1;
-    if (!cands.empty()) climb_turns(cands, axes, 1, ys.turns, turn, cost, &result.yaw_candidates);
+    auto sweep_cost = [&](const std::vector<Candidate>& c) { return costs_at(c, ys.sweep_stride); };
+    if (!cands.empty() && ys.turns.sweep_turns > 1 && ys.turns.sweep_starts > 1)
+      climb_from_sweep_starts(cands, axes, 1, ys.turns, turn, cost, sweep_cost, &result.yaw_candidates);
+    else if (!cands.empty())
+      climb_turns(cands, axes, 1, ys.turns, turn, cost, &result.yaw_candidates);
     std::vector<Candidate> moved;
     std::vector<std::size_t> moved_pose;
     for (std::size_t i = 0; i < cands.size(); ++i)
