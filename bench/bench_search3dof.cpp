@@ -31,13 +31,6 @@ using namespace perch2;
 
 namespace {
 
-double cpu_seconds() {
-  rusage u{};
-  getrusage(RUSAGE_SELF, &u);
-  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
-         1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
-
 struct Options {
   int scenes = 1;
   std::uint64_t seed = 8;
@@ -190,9 +183,9 @@ int run(const Options& o) {
     s.keep_scored = o.verbose;
     if (o.icp_epsilon > 0) s.icp.translation_epsilon_m = s.icp.rotation_epsilon_rad = o.icp_epsilon;
     TabletopEstimator<Backend> est(tm, s);
-    const double c0 = cpu_seconds();
+    const double c0 = bench::cpu_seconds();
     const TabletopResult r = est.estimate(frame, counts, T_world_cam.inverse());
-    const double cpu = cpu_seconds() - c0;
+    const double cpu = bench::cpu_seconds() - c0;
     cpu_total += cpu, wall_total += r.timings.total;
     const TabletopTimings& t = r.timings;
     sum.render += t.render, sum.refine += t.refine, sum.cost += t.cost, sum.observed += t.observed;

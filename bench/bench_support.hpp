@@ -67,6 +67,14 @@ inline long status_kb(const char* field) {
   return 0;
 }
 
+/// CPU seconds (user + system, all threads) this process has used so far.
+inline double cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+         1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
 /// Runs f (returning std::array<double, N>) in a forked child; returns f's N results and the child's peak
 /// resident memory (VmHWM, MiB), which includes what the parent held at the fork. Each configuration gets
 /// its own process so one configuration's peak does not hide another's.

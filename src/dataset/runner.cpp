@@ -92,8 +92,9 @@ Estimator make_estimator(const BopDataset& data, const RunOptions& o, const std:
 using Stages = std::vector<std::pair<std::string, double>>;
 
 Stages stages_of(const TabletopTimings& t) {
-  return {{"table", t.table},   {"observed", t.observed}, {"hypotheses", t.hypotheses}, {"render", t.render},
-          {"refine", t.refine}, {"cost", t.cost},         {"select", t.select},         {"total", t.total}};
+  return {{"table", t.table},   {"observed", t.observed}, {"hypotheses", t.hypotheses},
+          {"render", t.render}, {"refine", t.refine},     {"cost", t.cost},
+          {"select", t.select}, {"yaw", t.yaw},           {"total", t.total}};
 }
 
 Stages stages_of(const SixDofTimings& t) {

@@ -79,7 +79,8 @@ struct ImageResult {
   std::vector<int> row_models;     ///< per row: index into BopRunner::meshes()
   std::vector<bool> row_found;     ///< per row: 6-DoF: the pose showed enough rendered points; 3-DoF: true
   /// Per-stage wall-clock seconds in the estimator's order, "total" last (3-DoF: table, observed,
-  /// hypotheses, render, refine, cost, select; 6-DoF: observed, proposals, render, refine, cost, select).
+  /// hypotheses, render, refine, cost, select, yaw (the yaw search; its renders and costs are also in render
+  /// and cost); 6-DoF: observed, proposals, render, refine, cost, select).
   std::vector<std::pair<std::string, double>> stages;
   double seconds = 0;  ///< the image's estimate time (the rows' "time" column)
   int requested = 0;   ///< instances the targets ask for

@@ -59,6 +59,7 @@
 #include "perch2/cost/cost.hpp"
 #include "perch2/registration/registration.hpp"
 #include "perch2/render/render.hpp"
+#include "perch2/search/local_search.hpp"
 #include "perch2/search/proposals.hpp"
 
 namespace perch2 {
@@ -707,59 +708,19 @@ class SixDofEstimator {
                                           const std::vector<std::size_t>& points_estimate,
                                           SixDofResult& result) const {
     const LocalSearchSettings& ls = settings_.local;
-    std::vector<CostBreakdown> current =
-        score(frame, occ, cost, hyps, ls.stride, ls.cost, points_estimate, result);
-    // Tries turns (angles about each model axis) of every active hypothesis; moves each to its best
-    // improving candidate. Returns which moved.
-    auto try_turns = [&](const std::vector<float>& angles, const std::vector<bool>& active) {
-      std::vector<Hypothesis> candidates;
-      std::vector<std::size_t> parent;
-      for (std::size_t h = 0; h < hyps.size(); ++h) {
-        if (!active[h]) continue;
-        for (int axis = 0; axis < 3; ++axis)
-          for (const float a : angles) {
-            Hypothesis c = hyps[h];
-            c.T_cam_obj.linear() =
-                c.T_cam_obj.linear() * Eigen::AngleAxisf(a, Eigen::Vector3f::Unit(axis)).toRotationMatrix();
-            candidates.push_back(c), parent.push_back(h);
-          }
-      }
-      std::vector<bool> moved(hyps.size(), false);
-      if (candidates.empty()) return moved;
-      result.local_candidates += candidates.size();
-      const std::vector<CostBreakdown> c =
-          score(frame, occ, cost, candidates, ls.stride, ls.cost, points_estimate, result);
-      std::vector<std::ptrdiff_t> best(hyps.size(), -1);
-      for (std::size_t i = 0; i < candidates.size(); ++i) {
-        const std::size_t h = parent[i];
-        const CostBreakdown& to_beat = best[h] < 0 ? current[h] : c[std::size_t(best[h])];
-        const bool both = c[i].rendered_outliers() <= current[h].rendered_outliers() &&
-                          c[i].observed_unexplained() <= current[h].observed_unexplained();
-        if (c[i].total < to_beat.total && (!ls.require_both_terms || both)) best[h] = std::ptrdiff_t(i);
-      }
-      for (std::size_t h = 0; h < hyps.size(); ++h)
-        if (best[h] >= 0) {
-          hyps[h] = candidates[std::size_t(best[h])];
-          current[h] = c[std::size_t(best[h])];
-          moved[h] = true;
-        }
-      return moved;
+    TurnSchedule schedule;
+    schedule.rotation_step_rad = ls.rotation_step_rad, schedule.levels = ls.levels;
+    schedule.moves_per_level = ls.moves_per_level, schedule.sweep_turns = ls.sweep_turns;
+    schedule.require_both_terms = ls.require_both_terms;
+    auto turn = [](Hypothesis h, int axis, float angle_rad) {  // about the model's own axis
+      h.T_cam_obj.linear() =
+          h.T_cam_obj.linear() * Eigen::AngleAxisf(angle_rad, Eigen::Vector3f::Unit(axis)).toRotationMatrix();
+      return h;
     };
-    if (ls.sweep_turns > 1) {
-      std::vector<float> angles;
-      for (int k = 1; k < ls.sweep_turns; ++k)
-        angles.push_back(6.2831853f * float(k) / float(ls.sweep_turns));
-      try_turns(angles, std::vector<bool>(hyps.size(), true));
-    }
-    float step = ls.rotation_step_rad;
-    for (int level = 0; level < ls.levels; ++level, step *= 0.5f) {
-      std::vector<bool> active(hyps.size(), true);
-      for (int move = 0; move < ls.moves_per_level; ++move) {
-        active = try_turns({-step, step}, active);
-        if (std::none_of(active.begin(), active.end(), [](bool a) { return a; })) break;
-      }
-    }
-    return current;
+    auto costs = [&](const std::vector<Hypothesis>& h) {
+      return score(frame, occ, cost, h, ls.stride, ls.cost, points_estimate, result);
+    };
+    return climb_turns(hyps, 3, 3, schedule, turn, costs, &result.local_candidates);
   }
 
   /// Renders, refines, re-renders and scores one chunk (appending its costs). Returns its largest rendered

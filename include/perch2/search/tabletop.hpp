@@ -26,6 +26,11 @@
 //             model's convex footprint prism from min_height_m to its top, posed by the hypothesis
 //   select    per model, the lowest-cost acceptable poses (min_rendered_points, min_inlier_fraction) whose
 //             footprints do not interpenetrate by more than overlap_tolerance_m, `count` of them
+//   yaw       the yaw (and x, y by a millimetre or two) of every selected pose of a model whose colours a
+//             turn changes, by a sweep and hill climbing over turns about the table normal scored with the
+//             nearest-colour test (YawSearchSettings, perch2/search/local_search.hpp): ICP cannot turn a
+//             printed can or bottle, and the grid's yaws and the tolerant colour test leave its label up to
+//             tens of degrees off
 //
 // Variants (the paper's Table I, see tabletop_variant()):
 //   Perch2C  parallel per-object search, occluders marked from the observed depth, RGB-D cost (default)
@@ -58,6 +63,7 @@
 #include "perch2/cost/cost.hpp"
 #include "perch2/registration/registration.hpp"
 #include "perch2/render/render.hpp"
+#include "perch2/search/local_search.hpp"
 #include "perch2/search/table_plane.hpp"
 
 namespace perch2 {
@@ -65,7 +71,9 @@ namespace perch2 {
 /// A model the tabletop search can place.
 struct TabletopModel {
   Mesh mesh;  ///< object frame, metres
-  /// Symmetric about the table normal (shape and appearance): one yaw per position instead of a yaw grid.
+  /// Symmetric about the table normal in shape: one yaw per position instead of a yaw grid. An untextured
+  /// model is taken to be symmetric in appearance too; a textured one (a can whose shape is symmetric but
+  /// whose label is not) still gets the yaw search (YawSearchSettings), which turns its label right.
   bool yaw_symmetric = false;
   /// Object -> placement frame (z up, table at z = 0, yaw 0). Unset: the object's z axis up, its lowest
   /// vertex on the table, its origin above the placement origin.
@@ -103,6 +111,45 @@ inline const char* to_string(SearchVariant v) {
   }
   return "?";
 }
+
+/// The yaw search after selection (see the file comment). ICP aligns what the depth shows; a printed can or
+/// bottle turned about its axis shows the same depth, so its yaw stays near the grid yaw it started from
+/// (yaw_step_rad apart), and the final cost's colour test (ColorRule::AnyNeighbour) tolerates a label a few
+/// millimetres off by design. Here each selected pose is turned about the table normal through its
+/// placement origin (and shifted in x, y) and scored with the nearest-neighbour colour test, which sees
+/// that misalignment; a move is taken only if it lowers both cost terms (turns.require_both_terms).
+/// Models a turn cannot change in colour keep their pose: single-coloured ones (their yaw is the
+/// geometry's, ICP's) and untextured ones declared yaw-symmetric (TabletopModel::yaw_symmetric).
+struct YawSearchSettings {
+  bool enabled = true;  ///< false: the selected yaws are returned as they are (the paper's search)
+  /// Sweep: 72 turns 5 deg apart (the nearest-colour cost's basin about the right yaw is only ~5 deg
+  /// wide on a 10 cm label seen at 1 m, and a label can be seen from the wrong side), then turns of
+  /// +-0.04 rad halving over 3 levels (down to 0.01 rad, ~0.6 deg), climbed from the selected yaw and the
+  /// sweep's best 2 others: a bottle's label and its back differ in a few letters, and the sweep's
+  /// samples, up to 2.5 deg off, can rank the back first.
+  TurnSchedule turns = [] {
+    TurnSchedule t;
+    t.rotation_step_rad = 0.04f;
+    t.levels = 3;
+    t.moves_per_level = 3;
+    t.sweep_turns = 72;
+    t.sweep_starts = 3;
+    return t;
+  }();
+  /// The levels also move each pose by +-translation_step_m in x and y (halving with the turn step): the
+  /// colour test sees a label a millimetre off, which is about what ICP leaves. 0: turns only (>= 0).
+  float translation_step_m = 0.001f;
+  int stride = 2;  ///< render stride of the turned poses (>= 1)
+  /// Render stride of the sweep's turns, which only rank each other to choose the climbs' starts
+  /// (turns.sweep_starts > 1; >= 1): a quarter of the points at 4.
+  int sweep_stride = 4;
+  /// The colour test of the nearest neighbour (ColorRule::Nearest) sees what AnyNeighbour tolerates.
+  CostSettings cost = [] {
+    CostSettings c;
+    c.color_rule = ColorRule::Nearest;
+    return c;
+  }();
+};
 
 struct TabletopSettings {
   // ---- hypotheses
@@ -206,6 +253,9 @@ struct TabletopSettings {
   /// landscape or draw it; off by default (thousands of entries).
   bool keep_scored = false;
 
+  /// After selection (Parallel and Tree modes): the yaw of textured objects (see YawSearchSettings).
+  YawSearchSettings yaw_search;
+
   TablePlaneSettings table;  ///< used when no table frame is given
 };
 
@@ -219,6 +269,7 @@ inline TabletopSettings tabletop_variant(SearchVariant v, TabletopSettings base 
   base.occluder_marking = v == SearchVariant::Perch2C || v == SearchVariant::DepthOnlyC;
   base.cost.use_color =
       v == SearchVariant::Perch2C || v == SearchVariant::Perch2A || v == SearchVariant::Perch2B;
+  base.yaw_search.enabled = base.yaw_search.enabled && base.cost.use_color;  // depth-only: no label seen
   return base;
 }
 
@@ -234,6 +285,7 @@ struct TabletopPose {
 
 struct TabletopTimings {  ///< seconds, wall clock
   double table = 0, observed = 0, hypotheses = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0;
+  double yaw = 0;  ///< the yaw search (its renders and costs are also in render and cost)
 };
 
 struct TabletopResult {
@@ -245,6 +297,7 @@ struct TabletopResult {
   std::size_t hypotheses_refined = 0;  ///< refined by ICP (Tree mode: summed over levels)
   std::size_t hypotheses_coarse = 0;   ///< scored at coarse_score_stride (after de-duplication)
   std::size_t hypotheses_scored = 0;   ///< scored at score_stride (Tree mode: summed over levels)
+  std::size_t yaw_candidates = 0;      ///< turned poses the yaw search scored
   std::vector<ObjectCount> missing;    ///< non-strict mode: instances requested but not found
   /// With TabletopSettings::keep_scored: every scored hypothesis after refinement (Tree mode: every level),
   /// instance = -1; score as in TabletopPose.
@@ -379,6 +432,17 @@ inline CloudBatch thin_clouds(const CloudBatch& in, int max_points) {
   return out;
 }
 
+/// Whether a turn of the model can change what the colour test sees: it has a texture, or vertex colours
+/// that differ, and is not declared symmetric about the table normal without a texture (e.g. an untextured
+/// bowl). A single-coloured model's yaw is decided by its geometry (ICP) alone.
+inline bool yaw_visible_in_colour(const TabletopModel& m) {
+  if (m.mesh.has_texture()) return true;
+  if (m.yaw_symmetric || m.mesh.vertex_colors.empty()) return false;
+  const Rgb8 c0 = m.mesh.vertex_colors.front();
+  return std::any_of(m.mesh.vertex_colors.begin(), m.mesh.vertex_colors.end(),
+                     [&](const Rgb8& c) { return c.r != c0.r || c.g != c0.g || c.b != c0.b; });
+}
+
 /// The share of a hypothesis' points (rendered and observed in its volume) it leaves unexplained: comparable
 /// across models of different sizes, unlike the raw-count total.
 inline float unexplained_fraction(const CostBreakdown& b) {
@@ -404,6 +468,7 @@ class TabletopEstimator {
       for (const auto& p : footprints_.back().polygon_xy_m) r2 = std::max(r2, p.squaredNorm());
       circumradius_.push_back(std::sqrt(r2));
       yaw_symmetric_.push_back(m.yaw_symmetric);
+      yaw_searched_.push_back(tabletop_detail::yaw_visible_in_colour(m));
     }
   }
 
@@ -461,6 +526,7 @@ class TabletopEstimator {
       search_tree(f, objects, grid, result);
     else
       search_parallel(f, objects, grid, result);
+    if (settings_.mode != SearchMode::BruteForceIcp) search_yaws(f, result);
     if (!result.missing.empty() && settings_.strict_instances) {
       const ObjectCount& m = result.missing.front();
       throw InvalidInput("objects", "model " + std::to_string(m.model) + " ('" + models_[m.model].mesh.name +
@@ -518,11 +584,21 @@ class TabletopEstimator {
                          "hidden_point_weight must be >= 0 and min_icp_inlier_fraction in [0, 1]");
     if (!(s.support_margin_m >= 0) || !(s.workspace_margin_m >= 0) || !(s.overlap_tolerance_m >= 0))
       throw InvalidInput("TabletopSettings", "margins and tolerances must be >= 0");
+    perch2::validate(s.yaw_search.turns, "TabletopSettings::yaw_search.turns");
+    if (s.yaw_search.stride < 1) throw InvalidInput("TabletopSettings::yaw_search.stride", "must be >= 1");
+    if (s.yaw_search.sweep_stride < 1)
+      throw InvalidInput("TabletopSettings::yaw_search.sweep_stride", "must be >= 1");
+    if (!(s.yaw_search.translation_step_m >= 0 && std::isfinite(s.yaw_search.translation_step_m)))
+      throw InvalidInput("TabletopSettings::yaw_search.translation_step_m", "must be finite and >= 0");
     frame.validate("tabletop frame");
     if (s.cost.use_color && s.mode != SearchMode::BruteForceIcp && frame.rgb.empty())
       throw InvalidInput("tabletop frame",
                          "has no colour image, which the RGB-D cost needs (set "
                          "cost.use_color = false for the depth-only cost)");
+    if (yaw_search_runs() && s.yaw_search.cost.use_color && frame.rgb.empty())
+      throw InvalidInput("tabletop frame",
+                         "has no colour image, which the yaw search's colour test needs (set "
+                         "yaw_search.enabled = false)");
     if (objects.empty()) throw InvalidInput("objects", "no objects requested");
     for (std::size_t i = 0; i < objects.size(); ++i) {
       const auto& o = objects[i];
@@ -702,11 +778,79 @@ class TabletopEstimator {
 
   std::vector<CostBreakdown> score(const Frame& f, const std::vector<Candidate>& cands,
                                    const CloudBatch& rendered, TabletopTimings& timings) const {
+    return score(f, cands, rendered, settings_.cost, timings);
+  }
+
+  std::vector<CostBreakdown> score(const Frame& f, const std::vector<Candidate>& cands,
+                                   const CloudBatch& rendered, const CostSettings& cs,
+                                   TabletopTimings& timings) const {
     const auto t = tabletop_detail::Clock::now();
-    std::vector<CostBreakdown> out =
-        f.cost->evaluate(rendered, cost_request(f, cands), settings_.cost).hypotheses;
+    std::vector<CostBreakdown> out = f.cost->evaluate(rendered, cost_request(f, cands), cs).hypotheses;
     timings.cost += tabletop_detail::seconds_since(t);
     return out;
+  }
+
+  bool yaw_search_runs() const {
+    return settings_.yaw_search.enabled && settings_.mode != SearchMode::BruteForceIcp;
+  }
+
+  /// The yaw search (YawSearchSettings) of every pose in result.poses whose model has a yaw the colour
+  /// test can see (tabletop_detail::yaw_visible_in_colour).
+  /// A pose it turned is scored again at score_stride as selection scored it (Parallel mode's score, with
+  /// the hidden term when occluders are marked).
+  void search_yaws(const Frame& f, TabletopResult& result) const {
+    using namespace tabletop_detail;
+    const YawSearchSettings& ys = settings_.yaw_search;
+    if (!yaw_search_runs()) return;
+    const auto t = Clock::now();
+    std::vector<Candidate> cands;
+    std::vector<std::size_t> pose_of;  // index into result.poses
+    for (std::size_t k = 0; k < result.poses.size(); ++k) {
+      const TabletopPose& p = result.poses[k];
+      if (yaw_searched_[std::size_t(p.model)])
+        cands.push_back({p.model, p.x_m, p.y_m, p.yaw_rad}), pose_of.push_back(k);
+    }
+    const Occluders occluders{f.rgbd.depth_m, {}};
+    const Occluders* occ = settings_.occluder_marking ? &occluders : nullptr;
+    const std::vector<Candidate> start = cands;
+    // Axis 0: a turn about the table normal; 1, 2: a shift in x, y of translation_step_m per first step.
+    const float metres_per_rad = ys.translation_step_m / ys.turns.rotation_step_rad;
+    auto turn = [&](Candidate c, int axis, float angle_rad) {
+      if (axis == 0)
+        c.yaw = std::remainder(c.yaw + angle_rad, kTwoPi);
+      else
+        (axis == 1 ? c.x : c.y) += angle_rad * metres_per_rad;
+      return c;
+    };
+    auto costs_at = [&](const std::vector<Candidate>& c, int stride) {
+      return score(f, c, render(f, c, stride, occ, result.timings), ys.cost, result.timings);
+    };
+    auto cost = [&](const std::vector<Candidate>& c) { return costs_at(c, ys.stride); };
+    const int axes = ys.translation_step_m > 0 ? 3 : 1;
+    auto sweep_cost = [&](const std::vector<Candidate>& c) { return costs_at(c, ys.sweep_stride); };
+    if (!cands.empty() && ys.turns.sweep_turns > 1 && ys.turns.sweep_starts > 1)
+      climb_from_sweep_starts(cands, axes, 1, ys.turns, turn, cost, sweep_cost, &result.yaw_candidates);
+    else if (!cands.empty())
+      climb_turns(cands, axes, 1, ys.turns, turn, cost, &result.yaw_candidates);
+    std::vector<Candidate> moved;
+    std::vector<std::size_t> moved_pose;
+    for (std::size_t i = 0; i < cands.size(); ++i)
+      if (cands[i].yaw != start[i].yaw || cands[i].x != start[i].x || cands[i].y != start[i].y)
+        moved.push_back(cands[i]), moved_pose.push_back(pose_of[i]);
+    if (!moved.empty()) {
+      const std::vector<CostBreakdown> costs =
+          score(f, moved, render(f, moved, settings_.score_stride, occ, result.timings), result.timings);
+      const std::vector<float> hidden = settings_.mode == SearchMode::Parallel
+                                            ? hidden_shares(f, moved, costs, occ != nullptr, result.timings)
+                                            : std::vector<float>{};
+      for (std::size_t j = 0; j < moved.size(); ++j) {
+        TabletopPose& p = result.poses[moved_pose[j]];
+        const float score =
+            costs[j].total + (hidden.empty() ? 0.f : settings_.hidden_point_weight * hidden[j]);
+        p = make_pose(f, moved[j], p.instance, score, costs[j]);
+      }
+    }
+    result.timings.yaw += seconds_since(t);
   }
 
   bool acceptable(const CostBreakdown& b) const {
@@ -1009,6 +1153,7 @@ class TabletopEstimator {
   std::vector<Footprint> footprints_;  ///< per model, placement frame (floor: min_height_m, per call)
   std::vector<float> circumradius_;    ///< per model, of the footprint about the placement origin, metres
   std::vector<bool> yaw_symmetric_;    ///< per model (TabletopModel::yaw_symmetric)
+  std::vector<bool> yaw_searched_;     ///< per model: the yaw search turns it (yaw_visible_in_colour)
 };
 
 }  // namespace perch2

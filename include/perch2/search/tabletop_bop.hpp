@@ -16,7 +16,9 @@
 //    rest pose; the built-in synth models and YCB/BOP tabletop models are z-up). The ground truth
 //    (scene_gt.json) is never read for estimation.
 //  - a model is searched with one yaw per position (yaw_symmetric) when models_info.json lists a continuous
-//    symmetry about an axis parallel to the model's z axis through its origin (x, y offset < 1 mm).
+//    symmetry about an axis parallel to the model's z axis through its origin (x, y offset < 1 mm). That is a
+//    symmetry of the shape: a textured model listed so (a can with a label) still gets the yaw search
+//    (TabletopSettings::yaw_search), which turns its label right; ADD(-S) then scores it by ADD-S.
 //  - the table frame is BOP's world frame (cam_R_w2c / cam_t_w2c: z up, table top at z = 0) when
 //    scene_camera.json gives it, else it is estimated from the depth (RANSAC plane).
 #pragma once
@@ -35,7 +37,7 @@
 namespace perch2 {
 
 /// A continuous symmetry about the model's z axis through its origin (axis within 1e-3 of z, offset < 1 mm
-/// from the axis): the model looks the same at every yaw.
+/// from the axis): the model's shape is the same at every yaw.
 inline bool symmetric_about_z(const dataset::ModelInfo& info) {
   for (const auto& s : info.symmetries_continuous) {
     const Eigen::Vector3f a = s.axis.normalized();
