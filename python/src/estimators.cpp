@@ -202,6 +202,24 @@ void bind_estimators(nb::module_& m) {
       .value("DepthOnlyC", SearchVariant::DepthOnlyC)
       .value("BfIcp", SearchVariant::BfIcp);
 
+  nb::class_<TurnSchedule> turns(m, "TurnSchedule", doc("TurnSchedule"));
+  turns.def(nb::init<>());
+  PERCH2_RW(turns, TurnSchedule, rotation_step_rad);
+  PERCH2_RW(turns, TurnSchedule, levels);
+  PERCH2_RW(turns, TurnSchedule, moves_per_level);
+  PERCH2_RW(turns, TurnSchedule, sweep_turns);
+  PERCH2_RW(turns, TurnSchedule, sweep_starts);
+  PERCH2_RW(turns, TurnSchedule, require_both_terms);
+
+  nb::class_<YawSearchSettings> ys(m, "YawSearchSettings", doc("YawSearchSettings"));
+  ys.def(nb::init<>());
+  PERCH2_RW(ys, YawSearchSettings, enabled);
+  PERCH2_RW(ys, YawSearchSettings, turns);
+  PERCH2_RW(ys, YawSearchSettings, translation_step_m);
+  PERCH2_RW(ys, YawSearchSettings, stride);
+  PERCH2_RW(ys, YawSearchSettings, sweep_stride);
+  PERCH2_RW(ys, YawSearchSettings, cost);
+
   nb::class_<TabletopSettings> ts(m, "TabletopSettings", doc("TabletopSettings"));
   ts.def(nb::init<>());
   PERCH2_RW(ts, TabletopSettings, xy_step_m);
@@ -258,6 +276,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ts, TabletopSettings, tree_max_occluding_fraction);
   PERCH2_RW(ts, TabletopSettings, strict_instances);
   PERCH2_RW(ts, TabletopSettings, keep_scored);
+  PERCH2_RW(ts, TabletopSettings, yaw_search);
   PERCH2_RW(ts, TabletopSettings, table);
 
   m.def(
@@ -321,6 +340,7 @@ void bind_estimators(nb::module_& m) {
                              {"refine", &TabletopTimings::refine},
                              {"cost", &TabletopTimings::cost},
                              {"select", &TabletopTimings::select},
+                             {"yaw", &TabletopTimings::yaw},
                              {"total", &TabletopTimings::total}})
     tt.def_ro(name, field, "seconds, wall clock");
 
@@ -333,6 +353,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(tr, TabletopResult, hypotheses_refined);
   PERCH2_RO(tr, TabletopResult, hypotheses_coarse);
   PERCH2_RO(tr, TabletopResult, hypotheses_scored);
+  PERCH2_RO(tr, TabletopResult, yaw_candidates);
   PERCH2_RO(tr, TabletopResult, missing);
   PERCH2_RO(tr, TabletopResult, scored);
   PERCH2_RO(tr, TabletopResult, timings);
