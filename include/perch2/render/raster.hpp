@@ -427,42 +427,70 @@ PERCH2_HD inline std::uint8_t to_u8(float c) {
   return std::uint8_t(min_f(max_f(c + 0.5f, 0.f), 255.f));
 }
 
-/// Bilinear texture lookup; OBJ convention (v = 0 at the image bottom), repeating outside [0, 1].
-PERCH2_HD inline Rgb8 sample_texture(const MeshView& m, float u, float v) {
+/// The four texels and weights of a bilinear texture lookup at (u, v): OBJ convention (v = 0 at the image
+/// bottom), repeating outside [0, 1]. sample_texture in two steps, so that a caller can fetch the texels of
+/// many lookups at once (the texture is often far larger than the caches).
+struct TexelQuad {
+  int i00, i10, i01, i11;  ///< texel indices: (x0, y0), (x1, y0), (x0, y1), (x1, y1)
+  float wx, wy;
+};
+PERCH2_HD inline TexelQuad texel_quad(const MeshView& m, float u, float v) {
   const float x = (u - floorf(u)) * float(m.texture_width) - 0.5f;
   const float y = (1.f - (v - floorf(v))) * float(m.texture_height) - 0.5f;
   const float xf = floorf(x), yf = floorf(y);
-  const float wx = x - xf, wy = y - yf;
   const int W = m.texture_width, H = m.texture_height;
   // x is in [-0.5, W - 0.5], so floor(x) in [-1, W - 1]: wrap without integer division (the clamp only
   // keeps a non-finite coordinate inside the texture).
   const int x0 = min_int(max_int(select_int(xf < 0.f, W - 1, int(xf)), 0), W - 1);
   const int y0 = min_int(max_int(select_int(yf < 0.f, H - 1, int(yf)), 0), H - 1);
   const int x1 = select_int(x0 + 1 == W, 0, x0 + 1), y1 = select_int(y0 + 1 == H, 0, y0 + 1);
-  const Rgb8 c00 = m.texture[y0 * W + x0], c10 = m.texture[y0 * W + x1];
-  const Rgb8 c01 = m.texture[y1 * W + x0], c11 = m.texture[y1 * W + x1];
+  return {y0 * W + x0, y0 * W + x1, y1 * W + x0, y1 * W + x1, x - xf, y - yf};
+}
+PERCH2_HD inline Rgb8 mix_texels(const MeshView& m, const TexelQuad& q) {
+  const Rgb8 c00 = m.texture[q.i00], c10 = m.texture[q.i10], c01 = m.texture[q.i01], c11 = m.texture[q.i11];
+  const float wx = q.wx, wy = q.wy;
   auto mix = [&](float p00, float p10, float p01, float p11) {
     return to_u8((1 - wy) * ((1 - wx) * p00 + wx * p10) + wy * ((1 - wx) * p01 + wx * p11));
   };
   return {mix(c00.r, c10.r, c01.r, c11.r), mix(c00.g, c10.g, c01.g, c11.g), mix(c00.b, c10.b, c01.b, c11.b)};
 }
+/// Bilinear texture lookup (texel_quad, then mix_texels).
+PERCH2_HD inline Rgb8 sample_texture(const MeshView& m, float u, float v) {
+  return mix_texels(m, texel_quad(m, u, v));
+}
+
+/// Barycentrics (w0, w1, w2) of camera-frame point `hit` in triangle (a, b, c): of the 3-D hit, so
+/// perspective-correct by construction.
+PERCH2_HD inline Vec3f barycentrics(Vec3f a, Vec3f b, Vec3f c, Vec3f hit) {
+  const Vec3f e1 = b - a, e2 = c - a, q = hit - a, normal = cross(e1, e2);
+  const float inv = 1.f / dot(normal, normal);
+  const float w1 = dot(cross(q, e2), normal) * inv, w2 = dot(cross(e1, q), normal) * inv;
+  return {1.f - w1 - w2, w1, w2};
+}
+
+/// Texture coordinates of triangle `tri` at barycentrics w (a textured model).
+PERCH2_HD inline Vec2f texture_uv(const MeshView& m, int tri, Vec3f w) {
+  const Vec2f t0 = m.corner_uvs[3 * tri], t1 = m.corner_uvs[3 * tri + 1], t2 = m.corner_uvs[3 * tri + 2];
+  return {w.x * t0.x + w.y * t1.x + w.z * t2.x, w.x * t0.y + w.y * t1.y + w.z * t2.y};
+}
+
+PERCH2_HD inline bool textured(const MeshView& m) {
+  return m.texture && m.corner_uvs;
+}
 
 /// Colour of triangle `tri` (camera-frame corners a, b, c) at its camera-frame point `hit`: texture, else
 /// interpolated vertex colours, else the model's base colour.
 PERCH2_HD inline Rgb8 shade(const MeshView& m, int tri, Vec3f a, Vec3f b, Vec3f c, Vec3f hit) {
-  const Vec3f e1 = b - a, e2 = c - a, q = hit - a, normal = cross(e1, e2);
-  const float inv = 1.f / dot(normal, normal);
-  const float w1 = dot(cross(q, e2), normal) * inv, w2 = dot(cross(e1, q), normal) * inv;
-  const float w0 = 1.f - w1 - w2;  // barycentrics of the 3-D hit: perspective-correct by construction
-  if (m.texture && m.corner_uvs) {
-    const Vec2f t0 = m.corner_uvs[3 * tri], t1 = m.corner_uvs[3 * tri + 1], t2 = m.corner_uvs[3 * tri + 2];
-    return sample_texture(m, w0 * t0.x + w1 * t1.x + w2 * t2.x, w0 * t0.y + w1 * t1.y + w2 * t2.y);
+  const Vec3f w = barycentrics(a, b, c, hit);
+  if (textured(m)) {
+    const Vec2f uv = texture_uv(m, tri, w);
+    return sample_texture(m, uv.x, uv.y);
   }
   if (m.vertex_colors) {
     const std::int32_t* f = m.triangles + 3 * tri;
     const Rgb8 c0 = m.vertex_colors[f[0]], c1 = m.vertex_colors[f[1]], c2 = m.vertex_colors[f[2]];
-    return {to_u8(w0 * c0.r + w1 * c1.r + w2 * c2.r), to_u8(w0 * c0.g + w1 * c1.g + w2 * c2.g),
-            to_u8(w0 * c0.b + w1 * c1.b + w2 * c2.b)};
+    return {to_u8(w.x * c0.r + w.y * c1.r + w.z * c2.r), to_u8(w.x * c0.g + w.y * c1.g + w.z * c2.g),
+            to_u8(w.x * c0.b + w.y * c1.b + w.z * c2.b)};
   }
   return m.base_color;
 }
@@ -878,24 +906,66 @@ struct RenderedSample {
   std::int32_t pixel;
 };
 
-/// Resolve pass for one z-buffer word of grid sample (i, j): decode the winning triangle, drop the sample if
-/// an observed occluder hides it, else shade it. Returns false for empty or occluded samples.
-PERCH2_HD inline bool resolve_sample(const MeshView& m, const PosedVertices& verts_cam, DepthTriangle word,
-                                     const Intrinsics& K, const GridRays& rays, int i, int j,
-                                     const OccluderView& occ, std::int32_t hypothesis_label,
-                                     RenderedSample& out) {
+/// Resolve pass for one z-buffer word of grid sample (i, j), before shading: decode the winning triangle,
+/// drop the sample if an observed occluder hides it, else set its point and pixel and keep its triangle in
+/// out.rgb for shade_sample(s). Returns false for empty or occluded samples.
+PERCH2_HD inline bool resolve_point(DepthTriangle word, const Intrinsics& K, const GridRays& rays, int i,
+                                    int j, const OccluderView& occ, std::int32_t hypothesis_label,
+                                    RenderedSample& out) {
   if (word == kEmptyPixel) return false;
   const float depth_m = unpack_depth(word);
-  const int tri = int(unpack_triangle(word));
   const int u = rays.stride * i, v = rays.stride * j;
   out.pixel = v * K.width + u;
   if (occ.depth_m && is_occluded(depth_m, occ.depth_m[out.pixel], occ.labels != nullptr,
                                  occ.labels ? occ.labels[out.pixel] : 0, hypothesis_label, occ.margin_m))
     return false;
   out.p_cam = depth_m * rays(i, j);
-  const std::int32_t* f = m.triangles + 3 * tri;
-  out.rgb = pack_rgb(shade(m, tri, verts_cam[f[0]], verts_cam[f[1]], verts_cam[f[2]], out.p_cam));
+  out.rgb = unpack_triangle(word);
   return true;
+}
+
+/// Colours a resolved sample (its triangle in s.rgb).
+PERCH2_HD inline void shade_sample(const MeshView& m, const PosedVertices& verts_cam, RenderedSample& s) {
+  const int tri = int(s.rgb);
+  const std::int32_t* f = m.triangles + 3 * tri;
+  s.rgb = pack_rgb(shade(m, tri, verts_cam[f[0]], verts_cam[f[1]], verts_cam[f[2]], s.p_cam));
+}
+
+/// resolve_point, then shade_sample.
+PERCH2_HD inline bool resolve_sample(const MeshView& m, const PosedVertices& verts_cam, DepthTriangle word,
+                                     const Intrinsics& K, const GridRays& rays, int i, int j,
+                                     const OccluderView& occ, std::int32_t hypothesis_label,
+                                     RenderedSample& out) {
+  if (!resolve_point(word, K, rays, i, j, occ, hypothesis_label, out)) return false;
+  shade_sample(m, verts_cam, out);
+  return true;
+}
+
+/// Colours n resolved samples. With a texture, a sample's texels are requested kTexelLookahead samples
+/// before they are mixed: the lookups of a large texture miss the caches, and one after another each would
+/// wait for memory (on the YCB banana's 4096^2 texture ~40% of the render; the same colours either way).
+constexpr int kTexelLookahead = 8;
+PERCH2_HD inline void shade_samples(const MeshView& m, const PosedVertices& verts_cam, RenderedSample* s,
+                                    int n) {
+  if (!textured(m)) {
+    for (int k = 0; k < n; ++k) shade_sample(m, verts_cam, s[k]);
+    return;
+  }
+  TexelQuad q[kTexelLookahead];
+  for (int k = 0; k < n + kTexelLookahead; ++k) {
+    const int slot = k % kTexelLookahead;
+    if (k >= kTexelLookahead) s[k - kTexelLookahead].rgb = pack_rgb(mix_texels(m, q[slot]));
+    if (k >= n) continue;
+    const int tri = int(s[k].rgb);
+    const std::int32_t* f = m.triangles + 3 * tri;
+    const Vec2f uv =
+        texture_uv(m, tri, barycentrics(verts_cam[f[0]], verts_cam[f[1]], verts_cam[f[2]], s[k].p_cam));
+    q[slot] = texel_quad(m, uv.x, uv.y);
+#if defined(PERCH2_RASTER_SSE2)
+    for (const int t : {q[slot].i00, q[slot].i10, q[slot].i01, q[slot].i11})
+      _mm_prefetch(reinterpret_cast<const char*>(m.texture + t), _MM_HINT_T0);
+#endif
+  }
 }
 
 /// What a render needs besides the model and the pose (device-callable copy of RenderSettings' fields).
@@ -934,8 +1004,8 @@ PERCH2_HD inline int render_hypothesis(const MeshView& m, const Rigid3f& T_cam_o
   int n = 0;
   for (int j = 0; j < roi.height; ++j)
     for (int i = 0; i < roi.width; ++i)
-      n += resolve_sample(m, posed, zbuf[j * roi.width + i], p.K, rays, roi.i0 + i, roi.j0 + j, p.occ, label,
-                          out[n]);
+      n += resolve_point(zbuf[j * roi.width + i], p.K, rays, roi.i0 + i, roi.j0 + j, p.occ, label, out[n]);
+  shade_samples(m, posed, out, n);
   return n;
 }
 
