@@ -812,8 +812,9 @@ PERCH2_HD void rasterize_triangle_run(const MeshView& m, PosedVertices v, int be
     // Candidates with one sample, four at a time through screen_single_samples; the others one by one.
     int single[kCandidateBatch + 3], ns = 0;
     for (int k = 0; k < n; ++k) {
-      single[ns] = k, ns += covers[k].single();
-      if (!covers[k].single()) rasterize(list[k], covers[k]);
+      const bool one = covers[k].single();
+      single[ns] = k, ns += one;
+      if (!one) rasterize(list[k], covers[k]);
     }
     for (int q = ns; q < ns + 3; ++q) single[q] = single[0];  // padding lanes, ignored
     for (int q = 0; q < ns; q += 4) {
