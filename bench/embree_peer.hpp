@@ -28,10 +28,11 @@ namespace perch2::bench {
 /// How the peer hands rays to Embree.
 enum class EmbreeTrace { One, Stream, Packet8, Packet16 };
 
-/// The defaults are the fastest measured here (README, "Render"): packets of 16 rays (AVX-512 on this CPU)
-/// over 4x4 tiles traced 12-25% faster than rtcIntersect1, 8-ray packets about as fast, the stream
-/// (rtcIntersect1M) slowest; the medium (Embree's default) and high build qualities trace equally fast
-/// within the noise, the low one ~10% slower.
+/// The defaults are the fastest measured here (README, "Render"; bench_render --interleave 1, medians of
+/// per-round ratios to rtcIntersect1 on the sphere / the banana): packets of 16 rays (AVX-512 on this CPU)
+/// over 4x4 tiles 1.28x / 1.09x, 8-ray packets 1.17x / 1.16x, the stream (rtcIntersect1M) 0.83x / 0.87x;
+/// with 16-ray packets the medium (Embree's default) and high build qualities trace equally fast (1.01x /
+/// 1.14x and 1.02x / 1.14x the low one).
 struct EmbreeSettings {
   EmbreeTrace trace = EmbreeTrace::Packet16;
   RTCBuildQuality quality = RTC_BUILD_QUALITY_MEDIUM;
