@@ -99,16 +99,23 @@ void check_grid_candidates(Mesh mesh, int num_poses, float z_min, float z_max, u
       for (const GridRoi& roi : {full, model, part}) {
         std::vector<char> listed(std::size_t(m.num_triangles), 0);
         int list[kCandidateBatch];
+        GridCover covers[kCandidateBatch];
         for (int first = 0; first < m.num_triangles; first += kCandidateBatch) {
           const int last = std::min(m.num_triangles, first + kCandidateBatch);
-          const int n = grid_candidates(m.triangles, spans.data(), first, last, roi, list);
+          const int n = grid_candidates(m.triangles, spans.data(), first, last, roi, list, covers);
           std::vector<int> expected;
           for (int t = first; t < last; ++t) {
             const std::int32_t* f = m.triangles + 3 * t;
             if (span_may_cover(spans[f[0]], spans[f[1]], spans[f[2]], roi)) expected.push_back(t);
           }
           REQUIRE(std::vector<int>(list, list + n) == expected);
-          for (int i = 0; i < n; ++i) listed[std::size_t(list[i])] = 1;
+          for (int i = 0; i < n; ++i) {
+            listed[std::size_t(list[i])] = 1;
+            const std::int32_t* f = m.triangles + 3 * list[i];
+            const GridRoi c = span_cover(spans[f[0]], spans[f[1]], spans[f[2]], roi);  // the cover it reports
+            REQUIRE((covers[i].i0 == c.i0 && covers[i].j0 == c.j0 &&
+                     -covers[i].neg_i1 == c.i0 + c.width - 1 && -covers[i].neg_j1 == c.j0 + c.height - 1));
+          }
         }
         for (int t = 0; t < m.num_triangles; ++t) {
           const std::int32_t* f = m.triangles + 3 * t;

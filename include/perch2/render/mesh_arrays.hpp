@@ -25,6 +25,7 @@ struct MeshArrays {
   int texture_width = 0, texture_height = 0;
   Rgb8 base_color{200, 200, 200};
   Vec3f box_min{0, 0, 0}, box_max{0, 0, 0};
+  float max_edge_m = 0.f;  ///< longest triangle edge, metres (see MeshView::max_edge_m)
 
   /// Takes the mesh's texture and colours without copying them (a texture can be 50 MB).
   explicit MeshArrays(Mesh&& mesh) {
@@ -63,7 +64,7 @@ struct MeshArrays {
     m.texture = texture.empty() ? nullptr : tex;
     m.num_vertices = int(vertices.size()), m.num_triangles = int(triangles.size() / 3);
     m.texture_width = texture_width, m.texture_height = texture_height;
-    m.base_color = base_color, m.box_min = box_min, m.box_max = box_max;
+    m.base_color = base_color, m.box_min = box_min, m.box_max = box_max, m.max_edge_m = max_edge_m;
     return m;
   }
   MeshView host_view() const {
@@ -102,12 +103,14 @@ struct MeshArrays {
     std::vector<Vec3f> sorted_normal(static_cast<std::size_t>(n));
     for (int t = 0; t < n; ++t) sorted_normal[std::size_t(t)] = unit_normal[std::size_t(order[t])];
     clusters.clear();
+    max_edge_m = 0.f;
     for (int begin = 0; begin < n;) {
       int end = begin + 1;
       while (end < n && end - begin < kClusterTriangles &&
              (key[order[end]] >> 30) == (key[order[begin]] >> 30))
         ++end;
       clusters.push_back(bound_cluster(begin, end, sorted_normal));
+      max_edge_m = std::max(max_edge_m, clusters.back().max_edge_m);
       begin = end;
     }
   }
@@ -169,6 +172,11 @@ struct MeshArrays {
         c.radius = std::max(c.radius, std::sqrt(dot(d, d)));
       }
     c.radius *= 1.0001f;  // rounding of the sphere itself
+    for (int t = begin; t < end; ++t)
+      for (int k = 0; k < 3; ++k) {
+        const Vec3f e = corner(t, (k + 1) % 3) - corner(t, k);
+        c.max_edge_m = std::max(c.max_edge_m, float(1.0001 * std::sqrt(double(dot(e, e)))));
+      }
     const float len = std::sqrt(dot(sum, sum));
     if (!(len > 0.f)) return c;  // all degenerate, or normals cancel: never culled
     c.axis = (1.f / len) * sum;
