@@ -31,12 +31,12 @@
 #endif
 
 #include "bench_support.hpp"
+#include "cli_common.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
 #include "perch2/eval/evaluator.hpp"
 #include "perch2/search/sixdof_bop.hpp"
 #include "perch2/synth/detections.hpp"
-#include "tabletop_bop.hpp"
 
 using namespace perch2;
 namespace fs = std::filesystem;
@@ -48,7 +48,7 @@ struct Options {
   std::string dir = "/tmp/perch2_bench_real";
   std::uint64_t seed = 1;
   std::vector<std::string> masks{"gt", "det"};
-  cli::BackendKind backend = cli::BackendKind::ThrustOmp;
+  dataset::BackendKind backend = dataset::BackendKind::ThrustOmp;
   bool peer = true;
   int fit = -1;  ///< >= 0: SixDofSettings::fit.iterations
 };
@@ -73,7 +73,7 @@ Options parse(int argc, char** argv) {
       if (v != "gt" && v != "det" && v != "both") throw InvalidInput("--masks", "must be gt, det or both");
       o.masks = v == "both" ? std::vector<std::string>{"gt", "det"} : std::vector<std::string>{v};
     } else if (a == "--backend") {
-      o.backend = cli::parse_backend(v);
+      o.backend = dataset::parse_backend(v);
     } else if (a == "--peer") {
       o.peer = v != "0";
     } else if (a == "--fit") {
@@ -255,7 +255,7 @@ int main(int argc, char** argv) try {
   std::printf("bench_real: %s, %s, %d OpenMP threads, load average %.2f at start\n", o.dataset.c_str(),
               bench::cpu_model().c_str(), omp_get_max_threads(), bench::load_average());
   const dataset::BopDataset data(o.dataset);
-  const Images images = cli::targets_by_image(data, 1, 1 << 30);
+  const Images images = dataset::targets_by_image(data.targets(), 1, 1 << 30);
   const std::vector<dataset::Detection> detections = degraded_detections(data, images, o.seed);
   const std::string det_file = o.dir + "/detections_degraded.json";
   dataset::save_detections(det_file, detections);
@@ -277,7 +277,7 @@ int main(int argc, char** argv) try {
   };
   for (const std::string& masks : o.masks) {
     double cpu = 0;
-    const auto estimates = o.backend == cli::BackendKind::Cpu
+    const auto estimates = o.backend == dataset::BackendKind::Cpu
                                ? run_perch2<cpu::Backend>(o, data, images, masks, detections, cpu)
                                : run_perch2<thrust_omp::Backend>(o, data, images, masks, detections, cpu);
     add("perch2_" + masks, estimates, cpu);

@@ -35,12 +35,13 @@
 #include <vector>
 
 #include "bench_support.hpp"
+#include "cli_common.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#include "perch2/dataset/runner.hpp"
 #include "perch2/eval/evaluator.hpp"
 #include "perch2/search/sixdof_bop.hpp"
 #include "perch2/synth/synth.hpp"
-#include "tabletop_bop.hpp"
 
 using namespace perch2;
 namespace fs = std::filesystem;
@@ -52,7 +53,7 @@ struct Options {
   std::uint64_t seed = 2020;
   int first = 1, last = 1 << 30;
   std::vector<std::string> masks{"gt", "det"};
-  std::vector<cli::BackendKind> backends{cli::BackendKind::Cpu};
+  std::vector<dataset::BackendKind> backends{dataset::BackendKind::Cpu};
   std::string dir = "/tmp/perch2_bench_sixdof";
   bool eval_only = false;
   std::string color_rule;  ///< "" = the default; any|nearest: SixDofSettings::cost.color_rule
@@ -95,9 +96,9 @@ Options parse(int argc, char** argv) {
       if (v != "gt" && v != "det" && v != "both") throw InvalidInput("--masks", "must be gt, det or both");
       o.masks = v == "both" ? std::vector<std::string>{"gt", "det"} : std::vector<std::string>{v};
     } else if (a == "--backend") {
-      o.backends = v == "both"
-                       ? std::vector<cli::BackendKind>{cli::BackendKind::Cpu, cli::BackendKind::ThrustOmp}
-                       : std::vector<cli::BackendKind>{cli::parse_backend(v)};
+      o.backends = v == "both" ? std::vector<dataset::BackendKind>{dataset::BackendKind::Cpu,
+                                                                   dataset::BackendKind::ThrustOmp}
+                               : std::vector<dataset::BackendKind>{dataset::parse_backend(v)};
     } else if (a == "--color-rule") {
       if (v != "any" && v != "nearest") throw InvalidInput("--color-rule", "must be any or nearest");
       o.color_rule = v;
@@ -159,8 +160,8 @@ std::string child_overrides(const Options& o) {
   return out;
 }
 
-std::string config_dir(const Options& o, const std::string& masks, cli::BackendKind b) {
-  return o.dir + "/results/" + masks + "_" + cli::backend_name(b);
+std::string config_dir(const Options& o, const std::string& masks, dataset::BackendKind b) {
+  return o.dir + "/results/" + masks + "_" + dataset::backend_name(b);
 }
 
 /// Child: one configuration over scenes [first, last]; per scene SSSSSS.csv and SSSSSS.times (observed
@@ -168,7 +169,7 @@ std::string config_dir(const Options& o, const std::string& masks, cli::BackendK
 template <class Backend>
 void run(const Options& o, const std::string& masks, const std::string& out_dir) {
   const dataset::BopDataset data(o.dir + "/dataset");
-  const auto images = cli::targets_by_image(data, o.first, o.last);
+  const auto images = dataset::targets_by_image(data.targets(), o.first, o.last);
   std::map<int, int> model_of;
   std::vector<SixDofModel> models;
   for (const auto& [id, info] : data.models_info())
@@ -329,9 +330,9 @@ void print_tables(const std::vector<Row>& rows) {
 int main(int argc, char** argv) try {
   const Options o = parse(argc, argv);
   if (!o.child_masks.empty()) {
-    const cli::BackendKind b = cli::parse_backend(o.child_backend);
+    const dataset::BackendKind b = dataset::parse_backend(o.child_backend);
     const std::string out = config_dir(o, o.child_masks, b);
-    if (b == cli::BackendKind::Cpu)
+    if (b == dataset::BackendKind::Cpu)
       run<cpu::Backend>(o, o.child_masks, out);
     else
       run<thrust_omp::Backend>(o, o.child_masks, out);
@@ -342,14 +343,14 @@ int main(int argc, char** argv) try {
   if (generate(o.dir + "/dataset", o.scenes, o.seed)) fs::remove_all(o.dir + "/results");
   std::vector<Row> rows;
   for (const std::string& masks : o.masks)
-    for (const cli::BackendKind b : o.backends) {
-      const std::string name = masks + "/" + cli::backend_name(b), dir = config_dir(o, masks, b);
+    for (const dataset::BackendKind b : o.backends) {
+      const std::string name = masks + "/" + dataset::backend_name(b), dir = config_dir(o, masks, b);
       if (!o.eval_only) {
         std::fprintf(stderr, "%s\n", name.c_str());
         const std::string command =
             "'" + fs::canonical("/proc/self/exe").string() + "' --dir '" + o.dir + "' --only " +
             std::to_string(o.first) + "-" + std::to_string(std::min(o.last, o.scenes)) + " --child " + masks +
-            " " + cli::backend_name(b) + (o.color_rule.empty() ? "" : " --color-rule " + o.color_rule) +
+            " " + dataset::backend_name(b) + (o.color_rule.empty() ? "" : " --color-rule " + o.color_rule) +
             child_overrides(o);
         if (std::system(command.c_str()) != 0) throw InvalidInput(name, "the run failed: " + command);
       }

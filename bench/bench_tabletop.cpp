@@ -20,9 +20,10 @@
 #include <vector>
 
 #include "bench_support.hpp"
+#include "cli_common.hpp"
+#include "perch2/dataset/runner.hpp"
 #include "perch2/eval/evaluator.hpp"
 #include "perch2/synth/synth.hpp"
-#include "tabletop_bop.hpp"
 
 using namespace perch2;
 namespace fs = std::filesystem;
@@ -34,7 +35,7 @@ struct Options {
   std::vector<SearchVariant> variants{SearchVariant::Perch2C,    SearchVariant::Perch2A,
                                       SearchVariant::Perch2B,    SearchVariant::Perch,
                                       SearchVariant::DepthOnlyC, SearchVariant::BfIcp};
-  std::vector<cli::BackendKind> backends{cli::BackendKind::ThrustOmp, cli::BackendKind::Cpu};
+  std::vector<dataset::BackendKind> backends{dataset::BackendKind::ThrustOmp, dataset::BackendKind::Cpu};
   std::string dir = "/tmp/perch2_bench_tabletop";
   std::string child_variant, child_backend;  ///< internal: run one configuration and exit
 };
@@ -53,9 +54,9 @@ Options parse(int argc, char** argv) {
     } else if (a == "--variants" && v != "all") {
       o.variants.clear();
       std::stringstream ss(v);
-      for (std::string name; std::getline(ss, name, ',');) o.variants.push_back(cli::parse_variant(name));
+      for (std::string name; std::getline(ss, name, ',');) o.variants.push_back(dataset::parse_variant(name));
     } else if (a == "--backend" && v != "both") {
-      o.backends = {cli::parse_backend(v)};
+      o.backends = {dataset::parse_backend(v)};
     } else if (a == "--dir") {
       o.dir = v;
     } else if (a != "--variants" && a != "--backend") {
@@ -78,26 +79,34 @@ void generate(const std::string& dir, int scenes) {
               summary.instances, summary.targets, summary.seconds, dir.c_str());
 }
 
+/// Per-stage wall-clock seconds summed over images.
+struct StageSums {
+  TabletopTimings sum;
+  int images = 0;
+  void add(const TabletopTimings& t) {
+    sum.table += t.table, sum.observed += t.observed, sum.hypotheses += t.hypotheses, sum.render += t.render;
+    sum.refine += t.refine, sum.cost += t.cost, sum.select += t.select, sum.total += t.total;
+    ++images;
+  }
+};
+
 /// Runs one configuration over every target image; writes CSV and the stage times and peak memory (one line
 /// of 10 numbers).
-void run(const dataset::BopDataset& data, SearchVariant v, cli::BackendKind b, const std::string& csv,
+void run(const dataset::BopDataset& data, SearchVariant v, dataset::BackendKind b, const std::string& csv,
          const std::string& times_file) {
-  const auto images = cli::targets_by_image(data);
-  std::set<int> ids;
-  for (const auto& [key, targets] : images)
-    for (const auto& t : targets) ids.insert(t.obj_id);
-  const cli::BopTabletop estimator(data, {ids.begin(), ids.end()}, v, b);
-  cli::StageTimes times;
+  dataset::RunOptions options;
+  options.variant = v, options.backend = b;
+  const dataset::BopRunner runner(data, options);
+  const auto images = runner.images();
+  StageSums times;
   std::vector<dataset::PoseEstimate> rows;
-  dataset::ImageLoadOptions load;
-  load.masks_visib = false;
   int done = 0;
-  for (const auto& [key, targets] : images) {
-    const cli::ImageEstimate e = estimator.estimate(data.load_image(key.first, key.second, load), targets);
+  for (const auto& [scene_id, im_id] : images) {
+    const dataset::ImageResult e = runner.estimate(scene_id, im_id);
     rows.insert(rows.end(), e.rows.begin(), e.rows.end());
-    times.add(e.result.timings);
+    times.add(e.tabletop->timings);
     ++done;  // before the call: its arguments' evaluation order is unspecified
-    cli::print_progress(stderr, done, int(images.size()), times.sum.total / done, e.result.timings.total);
+    cli::print_progress(stderr, done, int(images.size()), times.sum.total / done, e.tabletop->timings.total);
   }
   dataset::save_results_csv(csv, rows);
   const TabletopTimings& t = times.sum;
@@ -111,12 +120,12 @@ void run(const dataset::BopDataset& data, SearchVariant v, cli::BackendKind b, c
 int main(int argc, char** argv) try {
   const Options o = parse(argc, argv);
   const std::string data_dir = o.dir + "/dataset";
-  const auto csv_of = [&](SearchVariant v, cli::BackendKind b) {
-    return o.dir + "/" + cli::variant_name(v) + "_" + cli::backend_name(b) + ".csv";
+  const auto csv_of = [&](SearchVariant v, dataset::BackendKind b) {
+    return o.dir + "/" + dataset::variant_name(v) + "_" + dataset::backend_name(b) + ".csv";
   };
   if (!o.child_variant.empty()) {
-    const SearchVariant v = cli::parse_variant(o.child_variant);
-    const cli::BackendKind b = cli::parse_backend(o.child_backend);
+    const SearchVariant v = dataset::parse_variant(o.child_variant);
+    const dataset::BackendKind b = dataset::parse_backend(o.child_backend);
     run(dataset::BopDataset(data_dir), v, b, csv_of(v, b), csv_of(v, b) + ".times");
     return 0;
   }
@@ -129,19 +138,19 @@ int main(int argc, char** argv) try {
   struct Row {
     std::string name;
     eval::EvalReport report;
-    cli::StageTimes times;
+    StageSums times;
     double peak_mib = 0;
   };
   std::vector<Row> rows;
   for (const SearchVariant v : o.variants)
-    for (const cli::BackendKind b : o.backends) {
+    for (const dataset::BackendKind b : o.backends) {
       if (v != SearchVariant::Perch2C && b != o.backends.front()) continue;  // backends: default variant only
-      const std::string name = std::string(cli::variant_name(v)) + "/" + cli::backend_name(b);
+      const std::string name = std::string(dataset::variant_name(v)) + "/" + dataset::backend_name(b);
       const std::string csv = csv_of(v, b), times_file = csv + ".times";
       std::fprintf(stderr, "%s\n", name.c_str());
       fs::remove(times_file);
       const std::string command = "'" + fs::canonical("/proc/self/exe").string() + "' --dir '" + o.dir +
-                                  "' --child " + cli::variant_name(v) + " " + cli::backend_name(b);
+                                  "' --child " + dataset::variant_name(v) + " " + dataset::backend_name(b);
       if (std::system(command.c_str()) != 0) throw InvalidInput(name, "the run failed: " + command);
       Row row{name, eval::evaluate(data, dataset::load_results_csv(csv), es, csv), {}, 0};
       std::ifstream f(times_file);

@@ -16,6 +16,12 @@ namespace fs = std::filesystem;
 
 namespace {
 
+bool same_pixels(const ColorImage& a, const ColorImage& b) {
+  return a.width == b.width && a.height == b.height &&
+         std::equal(a.data.begin(), a.data.end(), b.data.begin(),
+                    [](const Rgb8& p, const Rgb8& q) { return p.r == q.r && p.g == q.g && p.b == q.b; });
+}
+
 template <class F>
 std::string error_of(F&& f) {
   try {
@@ -180,36 +186,146 @@ TEST_CASE("bop24 targets (images only) make every annotated object of the image 
   CHECK(e.find("image 6") != std::string::npos);
 }
 
-TEST_CASE("BopDataset rejects missing and malformed files, naming them") {
+TEST_CASE("BopDataset: a malformed scene entry costs only its image, named with its file and key") {
   const std::string root = write_small_dataset("bop_bad");
   const std::string gt = root + "/test/000002/scene_gt.json";
-  test::write_text(gt, R"({"5": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "obj_id": 7}]})");
-  std::string e = error_of([&] { BopDataset d(root); });
-  CHECK(e.find("scene_gt.json") != std::string::npos);
-  CHECK(e.find("cam_t_m2c") != std::string::npos);
-  test::write_text(
-      gt, R"({"5": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 1], "obj_id": 99}]})");
-  e = error_of([&] { BopDataset d(root); });
-  CHECK(e.find("obj_id 99") != std::string::npos);
-  test::write_text(
-      gt, R"({"5": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 2], "cam_t_m2c": [0, 0, 1], "obj_id": 7}]})");
-  e = error_of([&] { BopDataset d(root); });
-  CHECK(e.find("not a rotation") != std::string::npos);
-  test::write_text(gt, R"({"5": [ )");
-  e = error_of([&] { BopDataset d(root); });
-  CHECK(e.find("malformed JSON") != std::string::npos);
+  // Each bad scene_gt.json: the dataset opens, image (2, 5) is bad, info() and load_image() name the file
+  // and the key, and the targets file still lists the image (a run reports it rather than losing it).
+  auto bad_image_error = [&](const std::string& scene_gt) {
+    test::write_text(gt, scene_gt);
+    const BopDataset d(root);
+    CHECK_FALSE(d.has_image(2, 5));
+    CHECK(d.image_ids().empty());
+    REQUIRE(d.bad_image(2, 5) != nullptr);
+    CHECK(d.bad_image(2, 5)->path == gt);
+    CHECK(d.target_images() == std::vector<std::pair<int, int>>{{2, 5}});
+    CHECK_THROWS_AS(d.load_image(2, 5), FileError);
+    const std::string e = error_of([&] { d.info(2, 5); });
+    CHECK(e.rfind(gt + ": ", 0) == 0);
+    return e;
+  };
+  CHECK(bad_image_error(R"({"5": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "obj_id": 7}]})")
+            .find("image 5 instance 0: missing key \"cam_t_m2c\"") != std::string::npos);
+  CHECK(bad_image_error(
+            R"({"5": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 1], "obj_id": 99}]})")
+            .find("obj_id 99") != std::string::npos);
+  CHECK(bad_image_error(
+            R"({"5": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 2], "cam_t_m2c": [0, 0, 1], "obj_id": 7}]})")
+            .find("not a rotation") != std::string::npos);
+  CHECK(bad_image_error(R"({"5": [ )").find("malformed JSON") != std::string::npos);  // the whole file
   fs::remove(gt);
   fs::remove(root + "/test/000002/scene_gt_info.json");
   fs::remove(root + "/test/000002/depth/000005.png");
-  e = error_of([&] {
+  std::string e = error_of([&] {
     BopDataset d(root);
     d.load_image(2, 5);
   });
   CHECK(e.find("depth/000005.png") != std::string::npos);
+  // Without scene_camera.json the scene's images are unknown: a target of it is a bad image naming the file.
   fs::remove(root + "/test/000002/scene_camera.json");
-  e = error_of([&] { BopDataset d(root); });
+  const BopDataset no_camera(root);
+  CHECK(no_camera.warnings().size() == 1);
+  e = error_of([&] { no_camera.info(2, 5); });
+  CAPTURE(e);
   CHECK(e.find("scene_camera.json") != std::string::npos);
+  CHECK(e.find("image 5 (listed in the targets file) is not in the scene's JSON") != std::string::npos);
+  CHECK(e.find("cannot open") != std::string::npos);
+  // Dataset-level problems still fail at once.
   CHECK(error_of([&] { BopDataset d(root + "/nowhere"); }).find("nowhere") != std::string::npos);
+  fs::remove(root + "/models/models_info.json");
+  CHECK(error_of([&] { BopDataset d(root); }).find("models_info.json") != std::string::npos);
+}
+
+TEST_CASE("BopDataset: the other images of a scene with a bad entry are unaffected; stray keys warn") {
+  const std::string root = write_small_dataset("bop_bad_one");
+  const std::string scene = root + "/test/000002";
+  test::write_text(scene + "/scene_camera.json", R"({
+    "5": {"cam_K": [500.0, 0.0, 1.5, 0.0, 501.0, 1.0, 0.0, 0.0, 1.0], "depth_scale": 0.1},
+    "6": {"cam_K": [500.0, 0.0, 1.5, 0.0, 501.0, 1.0, 0.0, 0.0, 1.0], "depth_scale": 0.1},
+    "7": {"cam_K": [500.0, 1.0, 1.5, 0.0, 501.0, 1.0, 0.0, 0.0, 1.0]},
+    "x": {}})");
+  test::write_text(scene + "/scene_gt.json", R"({
+    "5": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 900], "obj_id": 8}],
+    "6": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, "far"], "obj_id": 8}],
+    "9": []})");
+  fs::remove(scene + "/scene_gt_info.json");
+  fs::remove(scene + "/mask_visib/000005_000001.png");
+  test::write_text(root + "/test_targets_bop19.json",
+                   R"([{"im_id": 5, "inst_count": 1, "obj_id": 8, "scene_id": 2},
+    {"im_id": 6, "inst_count": 1, "obj_id": 8, "scene_id": 2}, {"im_id": 7, "inst_count": 1, "obj_id": 8, "scene_id": 2}])");
+  const BopDataset d(root);
+  CHECK(d.image_ids() == std::vector<std::pair<int, int>>{{2, 5}});
+  CHECK(d.load_image(2, 5).masks_visib.size() == 1);
+  CHECK(d.bad_images().size() == 2);
+  CHECK(error_of([&] { d.info(2, 6); }).find("scene_gt.json: image 6 instance 0") != std::string::npos);
+  CHECK(error_of([&] { d.info(2, 7); }).find("scene_camera.json: image 7 cam_K: expected") !=
+        std::string::npos);
+  CHECK(d.targets().size() == 3);  // bop19 targets of bad images are kept: the run reports the images
+  CHECK(d.target_images().size() == 3);
+  REQUIRE(d.warnings().size() == 2);  // the key "x", the entry for image 9 (in no scene_camera.json entry)
+  CHECK(d.warnings()[0].find("\"x\"") != std::string::npos);
+  CHECK(d.warnings()[1].find("image 9 is not in scene_camera.json") != std::string::npos);
+  // A target of an image no scene has, in a scene without problems, is the targets file's error.
+  const std::string root2 = write_small_dataset("bop_bad_target");
+  test::write_text(root2 + "/test_targets_bop19.json",
+                   R"([{"im_id": 8, "inst_count": 1, "obj_id": 7, "scene_id": 2}])");
+  CHECK(error_of([&] { BopDataset bad(root2); }).find("image 8 is not in the split") != std::string::npos);
+}
+
+TEST_CASE("decode_image from the files' bytes equals load_image; bad bytes name their file") {
+  const std::string root = write_small_dataset("bop_bytes");
+  const BopDataset d(root);
+  ImageLoadOptions all;
+  all.masks = true;
+  fs::create_directories(root + "/test/000002/mask");
+  for (const char* m : {"000005_000000.png", "000005_000001.png"})
+    fs::copy_file(root + "/test/000002/mask_visib/" + m, root + "/test/000002/mask/" + m);
+  const ImageFiles files = d.read_image_files(2, 5, all);
+  REQUIRE(files.depth);
+  CHECK(files.depth->path == root + "/test/000002/depth/000005.png");
+  CHECK(files.depth->bytes == test::read_file(files.depth->path));
+  const BopImage from_bytes = decode_image(d.info(2, 5), files);
+  const BopImage from_files = d.load_image(2, 5, all);
+  // ... and both as the io loaders read each file on its own (depth_scale 0.1 mm per unit).
+  CHECK(from_bytes.frame.depth_m.data ==
+        io::load_depth_png(files.depth->path, d.info(2, 5).depth_scale_mm * 0.001f).data);
+  CHECK(from_bytes.frame.depth_m.data == from_files.frame.depth_m.data);
+  CHECK(same_pixels(from_bytes.frame.rgb, io::load_color_image(files.rgb->path)));
+  CHECK(same_pixels(from_bytes.frame.rgb, from_files.frame.rgb));
+  REQUIRE(from_bytes.masks_visib.size() == 2);
+  REQUIRE(from_bytes.masks.size() == 2);
+  for (std::size_t g = 0; g < 2; ++g) {
+    CHECK(from_bytes.masks_visib[g].data == from_files.masks_visib[g].data);
+    CHECK(from_bytes.masks[g].data == from_files.masks[g].data);
+  }
+  CHECK(from_bytes.frame.camera.width == 4);
+  // A JPEG colour image from bytes.
+  ColorImage rgb(4, 3, Rgb8{200, 100, 50});
+  const std::string jpg = test::temp_path("bytes.jpg");
+  io::save_color_image(jpg, rgb);
+  ImageFiles with_jpg = files;
+  with_jpg.rgb = FileBytes{"sent/000005.jpg", test::read_file(jpg)};
+  CHECK(same_pixels(decode_image(d.info(2, 5), with_jpg).frame.rgb, io::load_color_image(jpg)));
+  // Truncated, wrong-size and missing inputs: FileError naming where the bytes came from.
+  ImageFiles bad = files;
+  bad.depth->bytes.resize(bad.depth->bytes.size() / 2);
+  CHECK(error_of([&] { decode_image(d.info(2, 5), bad); }) ==
+        files.depth->path + ": truncated PNG (no IEND chunk at the end)");
+  bad = files;
+  bad.masks_visib[1].bytes = with_jpg.rgb->bytes;
+  CHECK(error_of([&] { decode_image(d.info(2, 5), bad); }) ==
+        files.masks_visib[1].path + ": not a PNG file (a PNG is required)");
+  bad = files;
+  bad.masks_visib.pop_back();
+  CHECK_THROWS_AS(decode_image(d.info(2, 5), bad), InvalidInput);
+  bad = files;
+  ColorImage wide(5, 3, Rgb8{1, 2, 3});
+  io::save_color_image(jpg, wide);
+  bad.rgb = FileBytes{"wide.jpg", test::read_file(jpg)};
+  CHECK(error_of([&] { decode_image(d.info(2, 5), bad); }).find("wide.jpg: image is 5x3") == 0);
+  fs::remove(root + "/test/000002/mask/000005_000001.png");
+  CHECK(error_of([&] { d.read_image_files(2, 5, all); }) ==
+        root + "/test/000002/mask/000005_000001.png: file not found");
 }
 
 TEST_CASE("COCO RLE: hand-encoded masks, string codec, round trips") {
@@ -328,4 +444,92 @@ TEST_CASE("Results CSV: round trip in mm, shards concatenate, bad rows name file
   fails_at_line_2("1,2,3,0.5,2 0 0 0 1 0 0 0 1,0 0 500,0.1", "not a rotation");
   fails_at_line_2("1,2,3,0.5,1 0 0 0 1 0 0 0 1,0 0 500,1e999", "time");
   CHECK(error_of([&] { load_results_csv(path + ".missing"); }).find(".missing") != std::string::npos);
+}
+
+TEST_CASE("Results CSV: a torn last line is named (file:line) and can be dropped") {
+  const std::string path = test::temp_path("torn.csv");
+  const std::string good = "1,2,3,0.5,1 0 0 0 1 0 0 0 1,0 0 500,0.1\n";
+  test::write_text(path, std::string(kBopResultsHeader) + "\n" + good + "1,2,4,0.5,1 0 0 0 1");
+  const std::string e = error_of([&] { load_results_csv(path); });
+  CHECK(e.find(path + ":3: torn last line") == 0);
+  CHECK(e.find("expected 7 comma-separated fields") != std::string::npos);
+  int torn = -1;
+  CHECK(load_results_csv(path, true, &torn).size() == 1);
+  CHECK(torn == 3);
+  CHECK(completed_images(path) == std::map<std::pair<int, int>, int>{{{1, 2}, 1}});
+  // The same bad line with its newline is a malformed file, not a torn one; a good last line needs none.
+  test::write_text(path, std::string(kBopResultsHeader) + "\n" + good + "1,2,4,0.5,1 0 0 0 1\n" + good);
+  CHECK(error_of([&] { load_results_csv(path, true); }).find(path + ":3: expected 7") == 0);
+  test::write_text(path, std::string(kBopResultsHeader) + "\n" + good + good.substr(0, good.size() - 1));
+  CHECK(load_results_csv(path, false, &torn).size() == 2);
+  CHECK(torn == 0);
+}
+
+TEST_CASE(
+    "ResultsWriter: rows appended per image, zero-row images recorded, resume drops what is unfinished") {
+  const std::string path = test::temp_path("stream.csv");
+  fs::remove(path);
+  fs::remove(path + ".done");
+  auto row = [](int im, int obj) {
+    PoseEstimate e;
+    e.scene_id = 1, e.im_id = im, e.obj_id = obj, e.score = 0.5, e.time_s = 0.25;
+    e.T_cam_obj.translation() = Eigen::Vector3f(0.01f * float(obj), 0.f, 0.5f);
+    return e;
+  };
+  std::string after_three;
+  {
+    ResultsWriter w(path, {});
+    w.write_image(1, 0, {row(0, 3), row(0, 4)});
+    CHECK(load_results_csv(path).size() == 2);  // on disk at once, before the writer closes
+    w.write_image(1, 1, {});                    // nothing found: still done
+    w.write_image(1, 2, {row(2, 3)});
+    CHECK_THROWS_AS(w.write_image(1, 2, {row(2, 3)}), InvalidInput);  // once only
+    CHECK_THROWS_AS(w.write_image(1, 3, {row(2, 3)}), InvalidInput);  // a row of another image
+    CHECK(w.is_done(1, 1));
+    CHECK_FALSE(w.is_done(1, 3));
+    after_three = test::read_file(path);
+  }
+  const std::map<std::pair<int, int>, int> three{{{1, 0}, 2}, {{1, 1}, 0}, {{1, 2}, 1}};
+  CHECK(completed_images(path) == three);
+  CHECK(load_results_csv(path).size() == 3);
+
+  // A crash while image 3 was written: one of its rows (no done record) and a torn line.
+  std::ostringstream partial;
+  write_results_csv(partial, {row(3, 3)}, false);
+  test::write_text(path, after_three + partial.str() + "1,3,4,0.5,1 0 0");
+  CHECK(completed_images(path) == three);
+  {
+    ResultsWriter w(path, {true, false});
+    CHECK(w.done() == three);
+    REQUIRE(w.resume_notes().size() == 3);
+    CHECK(w.resume_notes()[0].find("3 complete images (3 rows) kept") != std::string::npos);
+    CHECK(w.resume_notes()[1].find(path + ":6: dropped: torn last line") == 0);
+    CHECK(w.resume_notes()[2].find(path + ":5: dropped: a row of scene 1 image 3") == 0);
+    CHECK(test::read_file(path) == after_three);  // the finished images' lines, byte for byte
+    w.write_image(1, 3, {row(3, 3), row(3, 4)});
+  }
+  CHECK(load_results_csv(path).size() == 5);
+  CHECK(completed_images(path).size() == 4);
+  // Without the .done record (a CSV from elsewhere): every image with rows counts; zero-row ones cannot.
+  fs::remove(path + ".done");
+  CHECK(completed_images(path).size() == 3);
+  {
+    ResultsWriter w(path, {true, false});
+    CHECK(w.done().size() == 3);
+    CHECK(w.resume_notes().back().find(".done not found") != std::string::npos);
+  }
+  CHECK(completed_images(path).size() == 3);  // and the writer recorded them
+  // A fresh (non-resume) writer replaces the file; resume of a missing file starts one.
+  { ResultsWriter w(path, {}); }
+  CHECK(load_results_csv(path).empty());
+  CHECK(completed_images(path).empty());
+  fs::remove(path);
+  { ResultsWriter w(path, {true, false}); }
+  CHECK(test::read_file(path) == std::string(kBopResultsHeader) + "\n");
+  // Bad records and unwritable places are the file's errors.
+  test::write_text(path + ".done", "scene_id,im_id,rows\n1,0\n1,1,0\n");
+  CHECK(error_of([&] { ResultsWriter w(path, {true, false}); }).find(path + ".done:2: expected") == 0);
+  CHECK(error_of([&] {
+          ResultsWriter w(test::temp_path("no_such_dir/r.csv"), {});
+        }).find("no_such_dir/r.csv: cannot be written") != std::string::npos);
 }

@@ -10,14 +10,15 @@
 #include <map>
 #include <string>
 
+#include "cli_common.hpp"
 #include "commands.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#include "perch2/dataset/runner.hpp"
 #include "perch2/eval/metrics.hpp"
 #include "perch2/io/image_io.hpp"
 #include "perch2/search/sixdof.hpp"
 #include "perch2/synth/synth.hpp"
-#include "tabletop_bop.hpp"
 
 namespace {
 
@@ -115,7 +116,7 @@ ColorImage side_by_side(const ColorImage& a, const ColorImage& b) {
 }
 
 template <class Backend>
-int demo_6dof(const std::string& out, cli::BackendKind backend, std::uint64_t seed) {
+int demo_6dof(const std::string& out, dataset::BackendKind backend, std::uint64_t seed) {
   const Demo6 d = make_scene_6dof(seed);
   if (d.instances.empty()) throw InvalidInput("--seed", "this seed's scene shows no object well enough");
   std::vector<SixDofModel> models;
@@ -130,7 +131,7 @@ int demo_6dof(const std::string& out, cli::BackendKind backend, std::uint64_t se
   std::printf(
       "perch2 demo --mode 6dof: %zu objects piled on a table (%d hidden), %dx%d RGB-D, ground-truth "
       "visible masks and full boxes, %s (seed %llu)\n",
-      d.instances.size(), d.hidden, frame.camera.width, frame.camera.height, cli::backend_name(backend),
+      d.instances.size(), d.hidden, frame.camera.width, frame.camera.height, dataset::backend_name(backend),
       static_cast<unsigned long long>(seed));
   const double cpu0 = (double(std::clock()) / CLOCKS_PER_SEC);
   const SixDofResult r = estimator.estimate(frame, d.instances);
@@ -178,23 +179,24 @@ int demo_6dof(const std::string& out, cli::BackendKind backend, std::uint64_t se
 
 // ---- 3-DoF ---------------------------------------------------------------------------------------------
 
-int demo_3dof(const std::string& out, cli::BackendKind b, std::uint64_t seed) {
+int demo_3dof(const std::string& out, dataset::BackendKind b, std::uint64_t seed) {
   std::filesystem::create_directories(out);
   std::map<int, std::string> names;
   const dataset::BopDataset data = make_dataset(out + "/dataset", seed, names);
-  const auto images = cli::targets_by_image(data);
+  dataset::RunOptions options;  // PERCH 2.0-C
+  options.backend = b;
+  const dataset::BopRunner runner(data, options);
+  const auto images = runner.images();
   if (images.size() != 1) throw InvalidInput("demo dataset", "expected one image with targets");
-  const auto& [key, targets] = *images.begin();
-  std::vector<int> ids;
-  for (const auto& t : targets) ids.push_back(t.obj_id);
+  const auto [scene_id, im_id] = images.front();
+  const std::vector<int>& ids = runner.obj_ids();
 
-  const cli::BopTabletop estimator(data, ids, SearchVariant::Perch2C, b);
-  const dataset::BopImage image = data.load_image(key.first, key.second);
+  const dataset::BopImage image = runner.load_image(scene_id, im_id);
   std::printf("perch2 demo: %zu objects on a table, %dx%d RGB-D, PERCH 2.0-C on %s (seed %llu)\n", ids.size(),
-              image.frame.camera.width, image.frame.camera.height, cli::backend_name(b),
+              image.frame.camera.width, image.frame.camera.height, dataset::backend_name(b),
               static_cast<unsigned long long>(seed));
-  const cli::ImageEstimate e = estimator.estimate(image, targets);
-  const TabletopResult& r = e.result;
+  const dataset::ImageResult e = runner.estimate(image);
+  const TabletopResult& r = *e.tabletop;
   std::printf("  table frame %s; %zu grid hypotheses, %zu with observed support, %zu scored; %.2f s\n",
               r.table_estimated ? "estimated from the depth" : "from scene_camera.json", r.hypotheses_grid,
               r.hypotheses_kept, r.hypotheses_scored, e.seconds);
@@ -206,8 +208,8 @@ int demo_3dof(const std::string& out, cli::BackendKind b, std::uint64_t seed) {
   int within_1cm = 0;
   for (std::size_t i = 0; i < r.poses.size(); ++i) {
     const TabletopPose& p = r.poses[i];
-    const int obj_id = e.pose_obj_ids[i];
-    const eval::ModelPoints points(estimator.meshes()[std::size_t(p.model)].vertices);
+    const int obj_id = e.rows[i].obj_id;
+    const eval::ModelPoints points(runner.meshes()[std::size_t(p.model)].vertices);
     double adds = INFINITY;  // the nearest ground-truth instance of the same object
     for (const auto& g : image.info.gt)
       if (g.obj_id == obj_id) adds = std::min(adds, eval::adds_error(p.T_cam_obj, g.T_cam_obj, points));
@@ -218,19 +220,20 @@ int demo_3dof(const std::string& out, cli::BackendKind b, std::uint64_t seed) {
                 p.cost.rendered_inliers, p.cost.observed_in_volume);
     model_of_pose.push_back(p.model), poses.push_back(p.T_cam_obj);
   }
-  for (const auto& [obj, n] : e.missing) std::printf("  obj_id %d: %d instance(s) not found\n", obj, n);
+  for (const auto& m : r.missing)
+    std::printf("  obj_id %d: %d instance(s) not found\n", runner.obj_ids()[std::size_t(m.model)], m.count);
   std::printf(
       "  (cost = J_r + J_o of the RGB-D explanation cost; render = rendered points, in = explained, vol =\n"
       "   observed points in the object's volume)\n");
   std::printf("  %d / %zu objects within 1 cm ADD-S of the ground truth\n\n", within_1cm, ids.size());
   std::printf("per-stage wall-clock times:\n");
   cli::StageTimes times;
-  times.add(r.timings);
+  times.add(e.stages);
   times.print(stdout);
 
   io::save_color_image(out + "/scene_rgb.png", image.frame.rgb);
   io::save_color_image(out + "/overlay.png", cli::draw_overlay(image.frame.rgb, image.frame.camera,
-                                                               estimator.meshes(), model_of_pose, poses));
+                                                               runner.meshes(), model_of_pose, poses));
   std::printf("wrote %s/scene_rgb.png, %s/overlay.png; the scene as a BOP dataset in %s/dataset\n",
               out.c_str(), out.c_str(), out.c_str());
   return 0;
@@ -257,10 +260,10 @@ int demo_command(int argc, char** argv) {
       throw InvalidInput("--seed", "'" + seed_text + "' is not a number");
     }
   }
-  const cli::BackendKind b = cli::parse_backend(backend);
+  const dataset::BackendKind b = dataset::parse_backend(backend);
   if (mode == "3dof") return demo_3dof(out, b, seed);
-  return b == cli::BackendKind::Cpu ? demo_6dof<cpu::Backend>(out, b, seed)
-                                    : demo_6dof<thrust_omp::Backend>(out, b, seed);
+  return b == dataset::BackendKind::Cpu ? demo_6dof<cpu::Backend>(out, b, seed)
+                                        : demo_6dof<thrust_omp::Backend>(out, b, seed);
 }
 
 }  // namespace

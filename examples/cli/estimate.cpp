@@ -1,15 +1,15 @@
-// perch2 estimate: 3-DoF tabletop pose estimation over a BOP dataset, written as a BOP results CSV.
-#include <chrono>
+// perch2 estimate: 3-DoF or 6-DoF pose estimation over a BOP dataset (perch2::dataset::BopRunner), written
+// as a BOP results CSV.
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
-#include <set>
 #include <string>
 
+#include "cli_common.hpp"
 #include "commands.hpp"
-#include "estimate_6dof.hpp"
+#include "perch2/dataset/runner.hpp"
 #include "perch2/io/image_io.hpp"
-#include "tabletop_bop.hpp"
 
 namespace {
 
@@ -20,6 +20,7 @@ constexpr const char* kUsage =
     "                       [--variant perch2c|perch2a|perch2b|perch|depth-only|bf-icp]\n"
     "                       [--backend cpu|thrust_omp] [--overlays DIR] [--targets FILE]\n"
     "                       [--masks gt|DETECTIONS.json] [--box full|visible]   (6dof)\n"
+    "                       [--resume] [--strict]\n"
     "  Estimates the target objects (test_targets_bop19.json: inst_count per obj_id and image) of every "
     "image\n"
     "  of a BOP dataset and writes BOP results (score = 1 / (1 + cost), time = seconds per image).\n"
@@ -31,11 +32,33 @@ constexpr const char* kUsage =
     "  models drawn over each image.  Default variant perch2c, backend thrust_omp.\n"
     "  6dof: every target instance from its mask (--masks gt: mask_visib; or a detection file with COCO RLE\n"
     "  masks) and box (--box full: scene_gt_info's bbox_obj, the default; visible: bbox_visib), by\n"
-    "  SixDofEstimator (proposals on the box ray, GICP, RGB-D cost); score in [0, 1].\n";
+    "  SixDofEstimator (proposals on the box ray, GICP, RGB-D cost); score in [0, 1].\n"
+    "  Each image's rows are appended to RESULTS.csv (and the image to RESULTS.csv.done) as soon as it is\n"
+    "  done. A bad image (unreadable or truncated PNG/JPG, missing mask, malformed entry of its scene's "
+    "JSON\n"
+    "  files) is reported with the file and reason and skipped; the run goes on.  --strict: stop at the "
+    "first.\n"
+    "  --resume: keep the images RESULTS.csv already holds in full and estimate the others.  "
+    "SIGINT/SIGTERM:\n"
+    "  the current image is finished and written, then the run stops (a second signal stops it at once).\n"
+    "  Exit status: 0 all images estimated, 3 some skipped, 1 an error (or --strict stopped), 2 bad usage,\n"
+    "  130/143 interrupted by SIGINT/SIGTERM.\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 estimate: " << message << "\n\n" << kUsage;
   return 2;
+}
+
+/// DIR/SCENE_IM.png: the estimated models (poses found) drawn over the image.
+void write_overlay(const dataset::BopRunner& runner, const dataset::BopImage& image,
+                   const dataset::ImageResult& r, const std::string& dir) {
+  std::vector<int> model_of_pose;
+  std::vector<Pose> poses;
+  for (std::size_t k = 0; k < r.rows.size(); ++k)
+    if (r.row_found[k]) model_of_pose.push_back(r.row_models[k]), poses.push_back(r.rows[k].T_cam_obj);
+  io::save_color_image(
+      dir + "/" + dataset::bop_id(r.scene_id) + "_" + dataset::bop_id(r.im_id) + ".png",
+      cli::draw_overlay(image.frame.rgb, image.frame.camera, runner.meshes(), model_of_pose, poses));
 }
 
 std::pair<int, int> parse_scene_range(const std::string& s) {
@@ -54,15 +77,29 @@ std::pair<int, int> parse_scene_range(const std::string& s) {
   }
 }
 
+// The first SIGINT/SIGTERM asks the loop to stop after the current image; a second one kills at once (the
+// CSV is still valid: each image is appended with one write).
+volatile std::sig_atomic_t g_stop_signal = 0;
+
+extern "C" void on_stop_signal(int sig) {
+  g_stop_signal = sig;
+  std::signal(sig, SIG_DFL);
+}
+
 int estimate_command(int argc, char** argv) {
   std::string mode, dataset_dir, out, variant = "perch2c", backend = "thrust_omp", overlays, scenes;
   std::string masks = "gt", box = "full";
+  bool resume = false, strict = false;
   dataset::DatasetOptions options;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     if (a == "-h" || a == "--help") {
       std::cout << kUsage;
       return 0;
+    }
+    if (a == "--resume" || a == "--strict") {
+      (a == "--resume" ? resume : strict) = true;
+      continue;
     }
     if (k + 1 >= argc) return usage_error(a + " needs a value");
     std::string& target = a == "--mode"       ? mode
@@ -85,58 +122,85 @@ int estimate_command(int argc, char** argv) {
   if (dataset_dir.empty() || out.empty()) return usage_error("--dataset and --out are required");
   if (!std::filesystem::is_directory(dataset_dir))
     throw FileError(dataset_dir, "is not a directory (expected a BOP dataset root)");
-  const SearchVariant v = cli::parse_variant(variant);
-  const cli::BackendKind b = cli::parse_backend(backend);
+  dataset::RunOptions run;
+  run.mode = dataset::parse_mode(mode);
+  run.variant = dataset::parse_variant(variant);
+  run.backend = dataset::parse_backend(backend);
+  run.masks = masks;
+  run.box = box == "full" ? BoxKind::Full : BoxKind::Visible;
   const auto [first, last] = scenes.empty() ? std::pair<int, int>{0, 1 << 30} : parse_scene_range(scenes);
 
   const dataset::BopDataset data(dataset_dir, options);
   if (data.targets_path().empty())
     throw FileError(dataset_dir, "has no targets file (test_targets_bop19.json or _bop24.json)");
-  const auto images = cli::targets_by_image(data, first, last);
+  for (const std::string& w : data.warnings())
+    std::fprintf(stderr, "perch2 estimate: warning: %s\n", w.c_str());
+  const dataset::BopRunner runner(data, run);
+  const auto images = runner.images(first, last);
   if (images.empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
-  if (mode == "6dof") return cli::estimate_6dof(data, images, {masks, box == "full", out, overlays}, b);
-  std::set<int> ids;
-  for (const auto& [key, targets] : images)
-    for (const auto& t : targets) ids.insert(t.obj_id);
-  const cli::BopTabletop estimator(data, {ids.begin(), ids.end()}, v, b);
   if (!overlays.empty()) std::filesystem::create_directories(overlays);
-  dataset::save_results_csv(out, {});  // fail early if unwritable; header only
+  dataset::ResultsWriter writer(out, {resume, false});  // fails here if the output cannot be written
+  for (const std::string& note : writer.resume_notes())
+    std::fprintf(stderr, "perch2 estimate: %s\n", note.c_str());
+  std::vector<std::pair<int, int>> todo;
+  for (const auto& key : images)
+    if (!writer.is_done(key.first, key.second)) todo.push_back(key);
 
-  std::fprintf(stderr, "perch2 estimate: %zu images, %zu objects, variant %s, backend %s\n", images.size(),
-               ids.size(), cli::variant_name(v), cli::backend_name(b));
+  std::fprintf(stderr, "perch2 estimate: %zu images", todo.size());
+  if (todo.size() != images.size()) std::fprintf(stderr, " (%zu done already)", images.size() - todo.size());
+  std::fprintf(stderr, ", %zu objects, %s\n", runner.obj_ids().size(), runner.describe().c_str());
+  std::signal(SIGINT, on_stop_signal);
+  std::signal(SIGTERM, on_stop_signal);
   cli::StageTimes times;
-  std::vector<dataset::PoseEstimate> rows;
-  int done = 0, missing = 0, requested = 0;
-  double seconds = 0;
-  dataset::ImageLoadOptions load;
-  load.masks_visib = false;
-  for (const auto& [key, targets] : images) {
-    const dataset::BopImage image = data.load_image(key.first, key.second, load);
-    const cli::ImageEstimate e = estimator.estimate(image, targets);
-    times.add(e.result.timings);
-    rows.insert(rows.end(), e.rows.begin(), e.rows.end());
-    for (const auto& t : targets) requested += t.inst_count;
-    for (const auto& m : e.missing) missing += m.second;
-    seconds += e.seconds;
-    if (!overlays.empty()) {
-      std::vector<int> model_of_pose;
-      std::vector<Pose> poses;
-      for (const auto& p : e.result.poses) model_of_pose.push_back(p.model), poses.push_back(p.T_cam_obj);
-      io::save_color_image(
-          overlays + "/" + dataset::bop_id(key.first) + "_" + dataset::bop_id(key.second) + ".png",
-          cli::draw_overlay(image.frame.rgb, image.frame.camera, estimator.meshes(), model_of_pose, poses));
+  std::vector<std::string> skipped;
+  int estimated = 0, poses = 0, missing = 0, unusable = 0, requested = 0, seen = 0;
+  double seconds = 0, last_s = 0;
+  for (const auto& [scene_id, im_id] : todo) {
+    if (g_stop_signal) break;
+    try {
+      const dataset::BopImage image = runner.load_image(scene_id, im_id);
+      const dataset::ImageResult r = runner.estimate(image);
+      writer.write_image(scene_id, im_id, r.rows);  // appended and flushed now
+      if (!overlays.empty()) write_overlay(runner, image, r, overlays);
+      times.add(r.stages);
+      poses += int(r.rows.size()), requested += r.requested, missing += r.missing, unusable += r.unusable;
+      seconds += r.seconds, last_s = r.seconds;
+      ++estimated;
+    } catch (const dataset::ImageError& e) {  // this image only
+      skipped.push_back(e.what());
+      std::fprintf(stderr, "\nperch2 estimate: skipped %s\n", e.what());
+      if (strict) break;
     }
-    ++done;
-    cli::print_progress(stderr, done, int(images.size()), seconds / done, e.seconds);
+    ++seen;
+    cli::print_progress(stderr, seen, int(todo.size()), estimated ? seconds / estimated : 0.0, last_s);
   }
-  dataset::save_results_csv(out, rows);
-  std::printf("perch2 estimate: %zu poses for %d requested instances (%d not found) in %d images -> %s\n",
-              rows.size(), requested, missing, done, out.c_str());
-  std::printf("per-stage wall-clock times (%s, %s):\n", cli::variant_name(v), cli::backend_name(b));
+
+  std::printf("perch2 estimate: %d poses for %d requested instances in %d images -> %s\n", poses, requested,
+              estimated, out.c_str());
+  if (missing > 0) std::printf("  %d instance(s) not found\n", missing);
+  if (unusable > 0)
+    std::printf("  %d instance(s) skipped: too few valid depth readings inside the mask\n", unusable);
+  std::printf("per-stage wall-clock times (%s):\n", runner.describe().c_str());
   times.print(stdout);
   if (!overlays.empty()) std::printf("overlays in %s/\n", overlays.c_str());
+  if (!skipped.empty()) {
+    std::fprintf(stderr,
+                 "perch2 estimate: %zu image(s) skipped%s (not in %s; fix them and run again with "
+                 "--resume):\n",
+                 skipped.size(), strict ? ", stopped at the first (--strict)" : "", out.c_str());
+    for (const std::string& s : skipped) std::fprintf(stderr, "  %s\n", s.c_str());
+  }
+  if (g_stop_signal) {
+    std::fprintf(stderr,
+                 "perch2 estimate: interrupted by %s after %d of %zu images; %s holds every finished image "
+                 "(%zu); run again with --resume to finish\n",
+                 g_stop_signal == SIGINT ? "SIGINT" : "SIGTERM", seen, todo.size(), out.c_str(),
+                 writer.done().size());
+    return 128 + g_stop_signal;
+  }
+  if (!skipped.empty()) return strict ? 1 : 3;
   return 0;
 }
 

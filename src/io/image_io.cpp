@@ -49,9 +49,8 @@ std::string describe(const cv::Mat& m) {
          std::to_string(m.rows);
 }
 
-/// Reads and decodes an image file as it is stored (no conversions).
-cv::Mat decode(const std::string& path, bool png_only) {
-  const std::string bytes = detail::read_file_bytes(path);
+/// Decodes an image file's bytes as stored (no conversions); `path` names them in errors.
+cv::Mat decode(const std::string& bytes, const std::string& path, bool png_only) {
   if (bytes.empty()) throw FileError(path, "empty file");
   const Codec codec = sniff(bytes);
   if (codec == Codec::Other) throw FileError(path, png_only ? "not a PNG file" : "not a PNG or JPEG file");
@@ -97,10 +96,18 @@ void check_not_empty(const Image<T>& image, const std::string& path, const std::
 
 }  // namespace
 
+std::string read_file(const std::string& path) {
+  return detail::read_file_bytes(path);
+}
+
 DepthImage load_depth_png(const std::string& path, float metres_per_unit) {
+  return decode_depth_png(detail::read_file_bytes(path), path, metres_per_unit);
+}
+
+DepthImage decode_depth_png(const std::string& bytes, const std::string& path, float metres_per_unit) {
   if (!std::isfinite(metres_per_unit) || metres_per_unit <= 0)
     throw InvalidInput("metres_per_unit", "must be finite and > 0, got " + std::to_string(metres_per_unit));
-  const cv::Mat m = decode(path, true);
+  const cv::Mat m = decode(bytes, path, true);
   if (m.type() != CV_16UC1)
     throw FileError(path, "expected a 16-bit single-channel depth PNG, got a " + describe(m) + " image");
   DepthImage depth(m.cols, m.rows);
@@ -137,7 +144,11 @@ void save_depth_png(const std::string& path, const DepthImage& depth_m, float me
 }
 
 ColorImage load_color_image(const std::string& path) {
-  const cv::Mat m = decode(path, false);
+  return decode_color_image(detail::read_file_bytes(path), path);
+}
+
+ColorImage decode_color_image(const std::string& bytes, const std::string& path) {
+  const cv::Mat m = decode(bytes, path, false);
   if (m.depth() != CV_8U)
     throw FileError(path, "expected an 8-bit colour image, got a " + describe(m) + " image");
   const int channels = m.channels();
@@ -179,7 +190,11 @@ void save_color_image(const std::string& path, const ColorImage& rgb) {
 }
 
 LabelImage load_label_png(const std::string& path) {
-  const cv::Mat m = decode(path, true);
+  return decode_label_png(detail::read_file_bytes(path), path);
+}
+
+LabelImage decode_label_png(const std::string& bytes, const std::string& path) {
+  const cv::Mat m = decode(bytes, path, true);
   if (m.type() != CV_8UC1 && m.type() != CV_16UC1)
     throw FileError(path,
                     "expected an 8- or 16-bit single-channel label PNG, got a " + describe(m) + " image");

@@ -24,6 +24,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "perch2/core/camera.hpp"
@@ -93,6 +94,35 @@ struct BopImage {
   LabelImage visible_labels() const;
 };
 
+/// An image the split lists (or the targets file asks for) that the dataset cannot give: one of its scene's
+/// JSON entries is malformed (or the whole file is). Costs only this image: opening the dataset goes on.
+struct BadImage {
+  int scene_id = 0, im_id = 0;
+  std::string path;    ///< the JSON file
+  std::string reason;  ///< what is wrong with the image's entry (with the key)
+};
+
+/// One file's bytes and the path they came from (named in every error about them).
+struct FileBytes {
+  std::string path;
+  std::string bytes;
+};
+
+/// The encoded files of one image, as BopDataset::read_image_files() reads them (or a process that can
+/// read the dataset sends them to one that cannot). Absent or empty: not requested.
+struct ImageFiles {
+  std::optional<FileBytes> rgb;        ///< rgb/IM_ID.png or .jpg (or gray/)
+  std::optional<FileBytes> depth;      ///< depth/IM_ID.png
+  std::vector<FileBytes> masks_visib;  ///< mask_visib/IM_ID_GT_ID.png, one per info.gt entry
+  std::vector<FileBytes> masks;        ///< mask/IM_ID_GT_ID.png, one per info.gt entry
+};
+
+/// Decodes an image's files (load_image() is read_image_files() + this): depth to metres with
+/// info.depth_scale_mm, masks to 0/1. FileError naming the file for bytes that are not a complete image of
+/// the right kind, or whose size disagrees with the camera or the other files; InvalidInput if masks are
+/// given but not one per ground-truth instance.
+BopImage decode_image(const ImageInfo& info, const ImageFiles& files);
+
 struct DatasetOptions {
   std::string split = "test";  ///< folder of scenes under the root
   /// Targets file under the root; "" = test_targets_bop19.json, else test_targets_bop24.json, else none.
@@ -104,6 +134,10 @@ struct DatasetOptions {
 class BopDataset {
  public:
   /// Parses models_info.json, camera.json, the targets file and every scene's JSON files of the split.
+  /// A malformed entry of a scene's JSON files (or a malformed scene file) costs only the images it
+  /// describes: they are listed in bad_images() and info()/load_image() throw its FileError. A missing or
+  /// malformed models_info.json, camera.json or targets file, a missing split folder, a split without
+  /// scene folders, or a target in no scene at all still throw FileError here.
   explicit BopDataset(std::string root, DatasetOptions options = {});
 
   const std::string& root() const { return root_; }
@@ -120,26 +154,48 @@ class BopDataset {
 
   /// Scene ids of the split, ascending.
   std::vector<int> scene_ids() const;
-  /// Every (scene, image) of the split, in scene then image order.
+  /// Every usable (scene, image) of the split, in scene then image order (bad images are not listed).
   std::vector<std::pair<int, int>> image_ids() const;
-  /// InvalidInput if the split has no such image.
+  /// FileError naming the JSON file and the entry if it is a bad image; InvalidInput if the split has no
+  /// such image.
   const ImageInfo& info(int scene_id, int im_id) const;
-  bool has_image(int scene_id, int im_id) const;
+  bool has_image(int scene_id, int im_id) const;  ///< a usable image (not a bad one)
+
+  /// The images whose JSON entries are malformed, and problems of the scene files that cost no listed
+  /// image ("PATH: reason": a key that is not an image id, an entry for an image scene_camera.json does not
+  /// list), e.g. to print when a run starts.
+  const std::map<std::pair<int, int>, BadImage>& bad_images() const { return bad_images_; }
+  const BadImage* bad_image(int scene_id, int im_id) const;  ///< nullptr if the image is not bad
+  const std::vector<std::string>& warnings() const { return warnings_; }
 
   /// Path of the targets file read ("" if none), and its targets (bop24: one per object of each image,
-  /// inst_count = the image's annotated instances of that object).
+  /// inst_count = the image's annotated instances of that object; none for a bad image).
   const std::string& targets_path() const { return targets_path_; }
   const std::vector<Target>& targets() const { return targets_; }
+  /// Every image the targets file lists, ascending, bad images included.
+  const std::vector<std::pair<int, int>>& target_images() const { return target_images_; }
 
   /// Reads the requested images of one (scene, image). FileError names a missing or broken file.
   BopImage load_image(int scene_id, int im_id, const ImageLoadOptions& options = {}) const;
+  /// The bytes of the requested files of one (scene, image), undecoded (see decode_image). FileError names
+  /// a missing or unreadable file.
+  ImageFiles read_image_files(int scene_id, int im_id, const ImageLoadOptions& options = {}) const;
 
  private:
   std::string root_, split_path_, models_path_, targets_path_;
   std::map<int, ModelInfo> models_info_;
-  std::map<int, std::map<int, ImageInfo>> scenes_;
+  std::map<int, std::map<int, ImageInfo>> scenes_;  // usable images only
+  std::map<std::pair<int, int>, BadImage> bad_images_;
+  std::vector<std::string> warnings_;
   std::vector<Target> targets_;
+  std::vector<std::pair<int, int>> target_images_;
 };
+
+/// Targets grouped by image, (scene_id, im_id) ascending; targets with inst_count 0 and scenes outside
+/// [first_scene, last_scene] are dropped.
+std::map<std::pair<int, int>, std::vector<Target>> targets_by_image(const std::vector<Target>& targets,
+                                                                    int first_scene = 0,
+                                                                    int last_scene = 1 << 30);
 
 /// Zero-padded 6-digit id, as BOP names folders and files ("000042").
 std::string bop_id(int id);
