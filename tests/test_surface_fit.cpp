@@ -131,15 +131,23 @@ V3 closest_on_triangle(const V3& p, const V3& a, const V3& b, const V3& c) {
 Pose reference_fit(const Mesh& m, const CloudBatch& obs, Pose start, const SurfaceFitSettings& s) {
   Eigen::Matrix<Ld, 3, 3> R = start.linear().cast<Ld>();
   V3 t = start.translation().cast<Ld>();
-  std::vector<V3> vn(m.vertices.size(), V3::Zero());  // area-weighted vertex normals
-  for (const auto& tri : m.triangles) {
+  // Corner normals: the area-weighted normals of the faces at the vertex within 30 deg of the face.
+  std::vector<V3> area(m.triangles.size());
+  std::vector<std::vector<std::size_t>> at(m.vertices.size());
+  for (std::size_t f = 0; f < m.triangles.size(); ++f) {
+    const auto& tri = m.triangles[f];
     const V3 a = m.vertices[std::size_t(tri[0])].cast<Ld>();
-    const V3 n = (m.vertices[std::size_t(tri[1])].cast<Ld>() - a)
-                     .cross(m.vertices[std::size_t(tri[2])].cast<Ld>() - a);
-    for (int k = 0; k < 3; ++k) vn[std::size_t(tri[k])] += n;
+    area[f] = (m.vertices[std::size_t(tri[1])].cast<Ld>() - a)
+                  .cross(m.vertices[std::size_t(tri[2])].cast<Ld>() - a);
+    for (int k = 0; k < 3; ++k) at[std::size_t(tri[k])].push_back(f);
   }
-  for (auto& n : vn)
-    if (n.norm() > 0) n.normalize();
+  const Ld smooth_cos = std::cos(Ld(30) * Ld(3.14159265358979323846L) / 180);
+  auto corner_normal = [&](std::size_t f, int vertex) {
+    V3 sum = V3::Zero();
+    for (const std::size_t g : at[std::size_t(vertex)])
+      if (area[g].norm() > 0 && area[g].normalized().dot(area[f].normalized()) >= smooth_cos) sum += area[g];
+    return V3(sum.normalized());
+  };
   std::vector<V3> A, B, C, N, centre;
   std::vector<Ld> radius;  // bounding spheres: a triangle farther than the best so far is skipped
   for (const auto& tri : m.triangles) {
@@ -179,8 +187,8 @@ Pose reference_fit(const Mesh& m, const CloudBatch& obs, Pose start, const Surfa
         const Ld d00 = v0.dot(v0), d01 = v0.dot(v1), d11 = v1.dot(v1), d20 = v2.dot(v0), d21 = v2.dot(v1);
         const Ld den = d00 * d11 - d01 * d01, v = (d11 * d20 - d01 * d21) / den,
                  w = (d00 * d21 - d01 * d20) / den;
-        const V3 s =
-            (1 - v - w) * vn[std::size_t(tri[0])] + v * vn[std::size_t(tri[1])] + w * vn[std::size_t(tri[2])];
+        const V3 s = (1 - v - w) * corner_normal(bt, tri[0]) + v * corner_normal(bt, tri[1]) +
+                     w * corner_normal(bt, tri[2]);
         n = s.norm() > 0 && s.normalized().dot(N[bt]) > Ld(0.1) ? V3(s.normalized()) : N[bt];
       }
       pairs.push_back({q, n, n.dot(e)});
@@ -281,6 +289,10 @@ TEST_CASE("surface fit rejects bad input with a clear error") {
   const Mesh m = object();
   CHECK_THROWS_WITH_AS(SurfaceFit<cpu::Backend>({}), doctest::Contains("no models"), InvalidInput);
   CHECK_THROWS_WITH_AS(SurfaceFit<cpu::Backend>({m}, 0.f), doctest::Contains("sample_spacing_m"),
+                       InvalidInput);
+  CHECK_THROWS_WITH_AS(SurfaceFit<cpu::Backend>({m}, 0.0015f, -0.1f), doctest::Contains("smooth_angle_rad"),
+                       InvalidInput);
+  CHECK_THROWS_WITH_AS(SurfaceFit<cpu::Backend>({m}, 0.0015f, 4.f), doctest::Contains("smooth_angle_rad"),
                        InvalidInput);
   Mesh flat = m;
   for (auto& v : flat.vertices) v.z() = 0.f, v.y() = 0.f;  // every triangle degenerate

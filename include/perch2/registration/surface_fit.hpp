@@ -10,9 +10,11 @@
 // cloud on a stride grid carries its own sampling error. So each observed point o of cloud c (camera
 // frame) is moved into the object frame, q = T^-1 o, and paired with the closest triangle of the model:
 // the exact closest point on each triangle owning one of the `neighbours` nearest surface samples (samples
-// ~1.5 mm apart, indexed once by the backend's KnnIndex) decides. The residual is the
-// distance to that triangle's plane, r = n . (q - a). The pose minimises sum_i w_i r_i^2 by iteratively
-// reweighted Gauss-Newton:
+// ~1.5 mm apart, indexed once by the backend's KnnIndex) decides. The residual is r = d . (q - p) with p
+// that closest point and d the smooth surface normal at p where p lies inside the triangle (corner normals
+// averaged over the adjacent faces within smooth_angle_rad, interpolated), else (q - p) / |q - p| at an
+// edge or corner (a reading beyond the silhouette is as far as it is). The pose minimises sum_i w_i r_i^2 by
+// iteratively reweighted Gauss-Newton:
 //   - a pair farther apart than max_distance_m, or whose triangle turns away from the camera at the current
 //     pose (n . R^T o >= 0: the camera cannot see that surface, so the reading is not of it), is not used;
 //   - w_i is Tukey's biweight of r_i / (tukey_c * s), s = max(1.4826 median |r_i|, min_scale_m): a robust
@@ -158,15 +160,14 @@ inline Eigen::Vector3d closest_on_triangle(const Eigen::Vector3d& p, const Eigen
   return a + ab * (vb * denom) + ac * (vc * denom);
 }
 
-/// A model triangle in double: corners, unit normal and the smooth (area-weighted vertex) normals at its
-/// corners (object frame).
+/// A model triangle in double: corners, unit normal and the smooth normals at its corners (object frame).
 struct Triangle {
   Eigen::Vector3d a, b, c, n;
-  Eigen::Vector3d na, nb, nc;
+  Eigen::Vector3d na = Eigen::Vector3d::Zero(), nb = Eigen::Vector3d::Zero(), nc = Eigen::Vector3d::Zero();
 };
 
 /// The direction in which the distance from the surface grows at q, given its closest point p on triangle
-/// t: where p is inside t, the smooth normal there (the vertex normals interpolated: a faceted can is
+/// t: where p is inside t, the smooth normal there (its corner normals interpolated: a faceted can is
 /// fitted as the cylinder it stands for, whose turn about its axis changes no distance); where an edge or
 /// corner is closest, (q - p) / |q - p|, so the residual is the whole distance (a reading beyond the
 /// silhouette would nearly satisfy a plane through the edge).
@@ -192,8 +193,11 @@ class SurfaceFit {
   /// Samples every model's surface about `sample_spacing_m` apart (metres; finer than the sensor's pixel
   /// footprint: 1.5 mm is ~1 px at 0.9 m) and indexes the samples once, one segment per model. Throws
   /// InvalidInput on no models, a bad mesh or a spacing that is not > 0.
-  explicit SurfaceFit(const std::vector<Mesh>& models, float sample_spacing_m = 0.0015f)
-      : index_(samples_of(models, sample_spacing_m)) {}
+  /// Faces meeting at less than `smooth_angle_rad` (default 30 deg: a 64-sided can's facets, 5.6 deg, are
+  /// one smooth side; a box's faces, 90 deg, stay flat) share their corner normals.
+  explicit SurfaceFit(const std::vector<Mesh>& models, float sample_spacing_m = 0.0015f,
+                      float smooth_angle_rad = 0.5235988f)
+      : index_(samples_of(models, sample_spacing_m, smooth_angle_rad)) {}
 
   std::size_t num_samples(int model) const {
     return std::size_t(offsets_[std::size_t(model) + 1] - offsets_[std::size_t(model)]);
@@ -346,33 +350,47 @@ class SurfaceFit {
     return !done;
   }
 
-  CloudBatch samples_of(const std::vector<Mesh>& models, float spacing_m) {
+  CloudBatch samples_of(const std::vector<Mesh>& models, float spacing_m, float smooth_angle_rad) {
     if (models.empty()) throw InvalidInput("surface fit", "no models given");
     if (!(std::isfinite(spacing_m) && spacing_m > 0))
       throw InvalidInput("surface fit sample_spacing_m", "must be finite and > 0");
+    if (!(smooth_angle_rad >= 0 && smooth_angle_rad <= 3.1415927f))
+      throw InvalidInput("surface fit smooth_angle_rad", "must be in [0, pi]");
     CloudBatch b;
     for (std::size_t m = 0; m < models.size(); ++m) {
       models[m].validate();
       const std::size_t before = points_.size(), first_triangle = triangles_.size();
       const Mesh& mesh = models[m];
-      std::vector<Eigen::Vector3d> vertex_normal(mesh.vertices.size(), Eigen::Vector3d::Zero());
-      for (const auto& t : mesh.triangles) {  // area-weighted: the cross product's length is twice the area
-        const Eigen::Vector3d a = mesh.vertices[std::size_t(t[0])].cast<double>(),
-                              n = (mesh.vertices[std::size_t(t[1])].cast<double>() - a)
-                                      .cross(mesh.vertices[std::size_t(t[2])].cast<double>() - a);
-        for (int k = 0; k < 3; ++k) vertex_normal[std::size_t(t[k])] += n;
+      // Area-weighted face normals (the cross product is twice the area) and the faces at each vertex.
+      std::vector<Eigen::Vector3d> face(mesh.triangles.size());
+      std::vector<std::vector<std::int32_t>> faces_at(mesh.vertices.size());
+      for (std::size_t f = 0; f < mesh.triangles.size(); ++f) {
+        const Eigen::Vector3i& t = mesh.triangles[f];
+        const Eigen::Vector3d a = mesh.vertices[std::size_t(t[0])].cast<double>();
+        face[f] = (mesh.vertices[std::size_t(t[1])].cast<double>() - a)
+                      .cross(mesh.vertices[std::size_t(t[2])].cast<double>() - a);
+        for (int k = 0; k < 3; ++k) faces_at[std::size_t(t[k])].push_back(std::int32_t(f));
       }
-      for (auto& n : vertex_normal)
-        if (n.norm() > 0) n.normalize();
-      for (const auto& t : mesh.triangles) {
+      const double smooth_cos = std::cos(double(smooth_angle_rad));
+      // A corner's normal: the faces at the vertex within smooth_angle_rad of this face (a crease stays
+      // sharp).
+      auto corner = [&](std::size_t f, int vertex) {
+        const Eigen::Vector3d own = face[f].normalized();
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        for (const std::int32_t g : faces_at[std::size_t(vertex)])
+          if (face[std::size_t(g)].norm() > 0 && face[std::size_t(g)].normalized().dot(own) >= smooth_cos)
+            sum += face[std::size_t(g)];
+        return sum.norm() > 0 ? Eigen::Vector3d(sum.normalized()) : own;
+      };
+      for (std::size_t f = 0; f < mesh.triangles.size(); ++f) {
+        const Eigen::Vector3i& t = mesh.triangles[f];
         surface_fit_detail::Triangle d;
         d.a = mesh.vertices[std::size_t(t[0])].cast<double>();
         d.b = mesh.vertices[std::size_t(t[1])].cast<double>();
         d.c = mesh.vertices[std::size_t(t[2])].cast<double>();
         const Eigen::Vector3d n = (d.b - d.a).cross(d.c - d.a);
         d.n = n.norm() > 0 ? Eigen::Vector3d(n.normalized()) : Eigen::Vector3d::Zero();
-        d.na = vertex_normal[std::size_t(t[0])], d.nb = vertex_normal[std::size_t(t[1])];
-        d.nc = vertex_normal[std::size_t(t[2])];
+        if (face[f].norm() > 0) d.na = corner(f, t[0]), d.nb = corner(f, t[1]), d.nc = corner(f, t[2]);
         triangles_.push_back(d);
       }
       std::vector<std::int32_t> local;
