@@ -7,11 +7,11 @@
 //        its own seeded stream), boxes from the degraded masks, written to SCRATCH/detections_degraded.json
 //        (usable with `perch2 estimate --masks FILE`).
 // The peer (when OpenCV's surface_matching module is found at configure time): PPF3DDetector(0.025, 0.05)
-// trained once on the model's vertices with the PLY's normals; per instance, the mask's readings (every
-// pixel) with normals from computeNormalsPC3d (6 neighbours, oriented to the camera), match(1/40, 0.05),
-// then ICP(100, 0.005, 2.5, 8) on the best 5 poses (OpenCV's ppf_load_match sample settings), the lowest
-// residual taken. Depth only.
-// Usage: bench_real [--dataset DIR] [--dir SCRATCH (/tmp/perch2_bench_real)] [--seed S (1)]
+// trained once on the model's vertices with area-weighted vertex normals; per instance, the mask's readings
+// (every pixel) with normals from computeNormalsPC3d (6 neighbours, oriented to the camera), match(1/40,
+// 0.05), then ICP(100, 0.005, 2.5, 8) on the best 5 poses (OpenCV's ppf_load_match sample settings), the
+// lowest residual taken. Depth only. Usage: bench_real [--dataset DIR] [--dir SCRATCH
+// (/tmp/perch2_bench_real)] [--seed S (1)]
 //                   [--masks gt|det|both] [--backend cpu|thrust_omp (thrust_omp)] [--peer 0|1 (1)] [--fit N]
 #include <omp.h>
 
@@ -34,6 +34,7 @@
 #include "cli_common.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
+#include "perch2/dataset/runner.hpp"
 #include "perch2/eval/evaluator.hpp"
 #include "perch2/search/sixdof_bop.hpp"
 #include "perch2/synth/detections.hpp"
@@ -163,6 +164,23 @@ std::vector<dataset::PoseEstimate> run_perch2(const Options& o, const dataset::B
 }
 
 #ifdef PERCH2_HAVE_PPF
+/// The model's vertices (metres) with area-weighted vertex normals, as OpenCV's N x 6 point cloud.
+cv::Mat vertices_with_normals(const Mesh& mesh) {
+  std::vector<Eigen::Vector3f> n(mesh.vertices.size(), Eigen::Vector3f::Zero());
+  for (const auto& t : mesh.triangles) {
+    const Eigen::Vector3f a = mesh.vertices[std::size_t(t[0])];
+    const Eigen::Vector3f c =
+        (mesh.vertices[std::size_t(t[1])] - a).cross(mesh.vertices[std::size_t(t[2])] - a);
+    for (int k = 0; k < 3; ++k) n[std::size_t(t[k])] += c;
+  }
+  cv::Mat pc(int(mesh.vertices.size()), 6, CV_32F);
+  for (int i = 0; i < pc.rows; ++i) {
+    const Eigen::Vector3f v = mesh.vertices[std::size_t(i)], u = n[std::size_t(i)].normalized();
+    for (int k = 0; k < 3; ++k) pc.at<float>(i, k) = v[k], pc.at<float>(i, 3 + k) = u[k];
+  }
+  return pc;
+}
+
 /// OpenCV PPF + ICP (see the file comment) on every target instance's mask.
 std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, const Images& images,
                                            const std::string& masks,
@@ -173,9 +191,7 @@ std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, cons
   std::map<int, std::unique_ptr<ppf::PPF3DDetector>> detector;
   for (const auto& [id, info] : data.models_info()) {
     model_of[id] = int(model_of.size());
-    const cv::Mat pc = ppf::loadPLYSimple(data.model_path(id).c_str(), 1);
-    cv::Mat scaled = pc.clone();
-    scaled.colRange(0, 3) *= 0.001;  // BOP models are in mm
+    const cv::Mat scaled = vertices_with_normals(data.load_model(id));
     model_pc[id] = scaled;
     const std::clock_t c0 = std::clock();
     detector[id] = std::make_unique<ppf::PPF3DDetector>(0.025, 0.05);
