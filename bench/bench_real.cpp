@@ -10,9 +10,10 @@
 // trained once on the model's vertices with area-weighted vertex normals; per instance, the mask's readings
 // (every pixel) with normals from computeNormalsPC3d (6 neighbours, oriented to the camera), match(1/40,
 // 0.05), then ICP(100, 0.005, 2.5, 8) on the best 5 poses (OpenCV's ppf_load_match sample settings), the
-// lowest residual taken. Depth only. Usage: bench_real [--dataset DIR] [--dir SCRATCH
-// (/tmp/perch2_bench_real)] [--seed S (1)]
-//                   [--masks gt|det|both] [--backend cpu|thrust_omp (thrust_omp)] [--peer 0|1 (1)] [--fit N]
+// lowest residual taken. Depth only.
+// Usage: bench_real [--dataset DIR] [--dir SCRATCH (/tmp/perch2_bench_real)] [--seed S (1)]
+//   [--masks gt|det|both] [--backend cpu|thrust_omp (thrust_omp)] [--peer 0|1 (1)] [--perch2 0|1 (1)]
+//   [--fit N (SixDofSettings::fit.iterations; 0 = no final fit)]
 #include <omp.h>
 
 #include <chrono>
@@ -51,12 +52,13 @@ struct Options {
   std::vector<std::string> masks{"gt", "det"};
   dataset::BackendKind backend = dataset::BackendKind::ThrustOmp;
   bool peer = true;
-  int fit = -1;  ///< >= 0: SixDofSettings::fit.iterations
+  bool perch2 = true;  ///< --perch2 0: the peer alone
+  int fit = -1;        ///< >= 0: SixDofSettings::fit.iterations
 };
 
 constexpr const char* kUsage =
     "bench_real [--dataset DIR] [--dir SCRATCH] [--seed S] [--masks gt|det|both] [--backend cpu|thrust_omp] "
-    "[--peer 0|1] [--fit N]";
+    "[--peer 0|1] [--perch2 0|1] [--fit N]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -77,6 +79,8 @@ Options parse(int argc, char** argv) {
       o.backend = dataset::parse_backend(v);
     } else if (a == "--peer") {
       o.peer = v != "0";
+    } else if (a == "--perch2") {
+      o.perch2 = v != "0";
     } else if (a == "--fit") {
       o.fit = std::stoi(v);
     } else {
@@ -181,24 +185,36 @@ cv::Mat vertices_with_normals(const Mesh& mesh) {
   return pc;
 }
 
+/// OpenCV's PPF detectors, trained once per model (see the file comment), and the models' clouds for ICP.
+struct PpfModels {
+  std::map<int, int> model_of;
+  std::map<int, cv::Mat> cloud;  // obj_id -> N x 6 (metres, unit normals)
+  std::map<int, std::unique_ptr<cv::ppf_match_3d::PPF3DDetector>> detector;
+  double train_cpu_s = 0;
+};
+
+PpfModels train_ppf(const dataset::BopDataset& data) {
+  PpfModels m;
+  for (const auto& [id, info] : data.models_info()) {
+    m.model_of[id] = int(m.model_of.size());
+    m.cloud[id] = vertices_with_normals(data.load_model(id));
+    const std::clock_t c0 = std::clock();
+    m.detector[id] = std::make_unique<cv::ppf_match_3d::PPF3DDetector>(0.025, 0.05);
+    m.detector[id]->trainModel(m.cloud[id]);
+    const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
+    m.train_cpu_s += cpu;
+    std::fprintf(stderr, "PPF: trained obj %d (%d points) in %.1f CPU s\n", id, m.cloud[id].rows, cpu);
+  }
+  return m;
+}
+
 /// OpenCV PPF + ICP (see the file comment) on every target instance's mask.
 std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, const Images& images,
                                            const std::string& masks,
-                                           const std::vector<dataset::Detection>& detections, double& cpu_s) {
+                                           const std::vector<dataset::Detection>& detections,
+                                           PpfModels& models, double& cpu_s) {
   namespace ppf = cv::ppf_match_3d;
-  std::map<int, int> model_of;
-  std::map<int, cv::Mat> model_pc;  // obj_id -> N x 6 (metres, unit normals)
-  std::map<int, std::unique_ptr<ppf::PPF3DDetector>> detector;
-  for (const auto& [id, info] : data.models_info()) {
-    model_of[id] = int(model_of.size());
-    const cv::Mat scaled = vertices_with_normals(data.load_model(id));
-    model_pc[id] = scaled;
-    const std::clock_t c0 = std::clock();
-    detector[id] = std::make_unique<ppf::PPF3DDetector>(0.025, 0.05);
-    detector[id]->trainModel(scaled);
-    std::fprintf(stderr, "PPF: trained obj %d (%d points) in %.1f CPU s\n", id, scaled.rows,
-                 double(std::clock() - c0) / CLOCKS_PER_SEC);
-  }
+  const std::map<int, int>& model_of = models.model_of;
   auto by_image = dataset::detections_by_image(detections);
   dataset::ImageLoadOptions load;
   load.masks_visib = masks == "gt";
@@ -225,12 +241,12 @@ std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, cons
       cv::Mat scene(int(pts.size()), 3, CV_32F, pts.data()), scene_n;
       ppf::computeNormalsPC3d(scene, scene_n, 6, true, cv::Vec3f(0.f, 0.f, 0.f));
       std::vector<ppf::Pose3DPtr> results;
-      detector[in.obj_ids[k]]->match(scene_n, results, 1.0 / 40.0, 0.05);
+      models.detector[in.obj_ids[k]]->match(scene_n, results, 1.0 / 40.0, 0.05);
       if (results.empty()) continue;
       std::vector<ppf::Pose3DPtr> top(results.begin(),
                                       results.begin() + std::min<std::ptrdiff_t>(5, results.size()));
       ppf::ICP icp(100, 0.005f, 2.5f, 8);
-      icp.registerModelToScene(model_pc[in.obj_ids[k]], scene_n, top);
+      icp.registerModelToScene(models.cloud[in.obj_ids[k]], scene_n, top);
       const ppf::Pose3DPtr best = *std::min_element(
           top.begin(), top.end(),
           [](const ppf::Pose3DPtr& a, const ppf::Pose3DPtr& b) { return a->residual < b->residual; });
@@ -291,16 +307,23 @@ int main(int argc, char** argv) try {
     std::ofstream(o.dir + "/" + name + ".json")
         << eval::report_json(rows.back().report, eval::EvalSettings{});
   };
+#ifdef PERCH2_HAVE_PPF
+  std::unique_ptr<PpfModels>
+      ppf_models;  // trained on first use (several CPU minutes), kept for every mask set
+#endif
   for (const std::string& masks : o.masks) {
-    double cpu = 0;
-    const auto estimates = o.backend == dataset::BackendKind::Cpu
-                               ? run_perch2<cpu::Backend>(o, data, images, masks, detections, cpu)
-                               : run_perch2<thrust_omp::Backend>(o, data, images, masks, detections, cpu);
-    add("perch2_" + masks, estimates, cpu);
+    if (o.perch2) {
+      double cpu = 0;
+      const auto estimates = o.backend == dataset::BackendKind::Cpu
+                                 ? run_perch2<cpu::Backend>(o, data, images, masks, detections, cpu)
+                                 : run_perch2<thrust_omp::Backend>(o, data, images, masks, detections, cpu);
+      add("perch2_" + masks, estimates, cpu);
+    }
 #ifdef PERCH2_HAVE_PPF
     if (o.peer) {
       double ppf_cpu = 0;
-      const auto ppf = run_ppf(data, images, masks, detections, ppf_cpu);
+      if (!ppf_models) ppf_models = std::make_unique<PpfModels>(train_ppf(data));
+      const auto ppf = run_ppf(data, images, masks, detections, *ppf_models, ppf_cpu);
       add("ppf_icp_" + masks, ppf, ppf_cpu);
     }
 #else
@@ -318,6 +341,9 @@ int main(int argc, char** argv) try {
   }
   std::printf(
       "(ADD-S / ADD: AUC over 0-10 cm, percent; AR = mean of the VSD, MSSD, MSPD recalls; per image)\n");
+#ifdef PERCH2_HAVE_PPF
+  if (ppf_models) std::printf("PPF training (once, not in the rows): %.1f CPU s\n", ppf_models->train_cpu_s);
+#endif
   std::printf("load average %.2f at the end\n", bench::load_average());
   return 0;
 } catch (const std::exception& e) {
