@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <string>
+#include <utility>
 
 #include "noise_field.hpp"
 
@@ -53,6 +55,16 @@ std::array<int, 4> jitter_box(std::array<int, 4> b, float jitter, int W, int H, 
 }  // namespace
 
 MaskImage degrade_mask(const MaskImage& visible, const MaskDegradation& d, Rng& rng) {
+  const std::pair<const char*, float> sizes[] = {{"boundary_shift_px", d.boundary_shift_px},
+                                                 {"boundary_wobble_px", d.boundary_wobble_px},
+                                                 {"offset_px", d.offset_px},
+                                                 {"blob_size", d.blob_size}};
+  for (const auto& [name, v] : sizes)
+    if (!(std::isfinite(v) && v >= 0))
+      throw InvalidInput(std::string("MaskDegradation::") + name, "must be finite and >= 0");
+  for (const auto& [name, p] : {std::pair<const char*, float>{"bleed_probability", d.bleed_probability},
+                                {"cut_probability", d.cut_probability}})
+    if (!(p >= 0 && p <= 1)) throw InvalidInput(std::string("MaskDegradation::") + name, "must be in [0, 1]");
   const float shift = rng.uniform(-1.f, 1.f) * d.boundary_shift_px;
   const int du = int(std::lround(rng.uniform(-1.f, 1.f) * d.offset_px)),
             dv = int(std::lround(rng.uniform(-1.f, 1.f) * d.offset_px));
