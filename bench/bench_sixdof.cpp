@@ -19,6 +19,7 @@
 //                     [--local N (local search candidates per instance)] [--sweep N (its sweep turns)]
 //                     [--dedupe 0|1 (de-duplication after the ICP warm-up)]
 //                     [--local-select 0|1 (the local search's winner by its own cost or the final one)]
+//                     [--fit N (Gauss-Newton steps of the final surface fit, 0 = off)]
 #include <omp.h>
 
 #include <cstdio>
@@ -60,6 +61,7 @@ struct Options {
       local_select = -1;  ///< >= 0: SixDofSettings overrides
   int warmup = -1,
       iterations = -1;  ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
+  int fit = -1;         ///< >= 0: SixDofSettings::fit.iterations
   std::string child_masks, child_backend;  ///< internal: run one configuration over [first, last] and exit
 };
 
@@ -67,7 +69,7 @@ constexpr const char* kUsage =
     "bench_sixdof [--scenes N] [--seed S] [--only A-B] [--masks gt|det|both] [--backend "
     "cpu|thrust_omp|both]\n"
     "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]\n"
-    "             [--local N] [--sweep N] [--dedupe 0|1] [--local-select 0|1]";
+    "             [--local N] [--sweep N] [--dedupe 0|1] [--local-select 0|1] [--fit N]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -105,8 +107,8 @@ Options parse(int argc, char** argv) {
        : a == "--sweep"  ? o.local_sweep
        : a == "--dedupe" ? o.dedupe
                          : o.local_select) = std::stoi(v);
-    } else if (a == "--warmup" || a == "--iterations") {
-      (a == "--warmup" ? o.warmup : o.iterations) = std::stoi(v);
+    } else if (a == "--warmup" || a == "--iterations" || a == "--fit") {
+      (a == "--warmup" ? o.warmup : a == "--fit" ? o.fit : o.iterations) = std::stoi(v);
     } else if (a == "--dir") {
       o.dir = v;
     } else if (a == "--child" && k + 1 < argc) {
@@ -143,18 +145,16 @@ double cpu_seconds_now() {
   return double(std::clock()) / CLOCKS_PER_SEC;
 }
 
-double load_average() {
-  double l = 0;
-  std::ifstream("/proc/loadavg") >> l;
-  return l;
-}
-
 /// The setting overrides a child needs on its command line.
 std::string child_overrides(const Options& o) {
   std::string out;
-  const std::pair<const char*, int> all[] = {
-      {"--warmup", o.warmup},     {"--iterations", o.iterations}, {"--local", o.local_candidates},
-      {"--sweep", o.local_sweep}, {"--dedupe", o.dedupe},         {"--local-select", o.local_select}};
+  const std::pair<const char*, int> all[] = {{"--warmup", o.warmup},
+                                             {"--iterations", o.iterations},
+                                             {"--local", o.local_candidates},
+                                             {"--sweep", o.local_sweep},
+                                             {"--dedupe", o.dedupe},
+                                             {"--local-select", o.local_select},
+                                             {"--fit", o.fit}};
   for (const auto& [flag, v] : all)
     if (v >= 0) out += std::string(" ") + flag + " " + std::to_string(v);
   return out;
@@ -183,6 +183,7 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
   if (o.dedupe >= 0) settings.dedupe_after_warmup = o.dedupe != 0;
   if (o.local_select >= 0) settings.local.select_by_local_cost = o.local_select != 0;
   if (o.iterations >= 0) settings.gicp.max_iterations = o.iterations;
+  if (o.fit >= 0) settings.fit.iterations = o.fit;
   const SixDofEstimator<Backend> estimator(std::move(models), settings);
   std::vector<dataset::Detection> detections;
   std::map<std::pair<int, int>, std::vector<std::size_t>> detections_of;
@@ -202,7 +203,7 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
                       : bop_instances_from_detections(image, detections, detections_of[key], model_of);
     const BopInstances in =
         usable_instances(only_targets(all, targets), image.frame, estimator.settings().observed);
-    const double load_before = load_average(), cpu0 = cpu_seconds_now();
+    const double load_before = bench::load_average(), cpu0 = cpu_seconds_now();
     SixDofResult r;
     const auto rows = estimate_bop_image(estimator, image, in, &r);
     const double cpu = cpu_seconds_now() - cpu0;
@@ -213,8 +214,8 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
                                    << ' ' << t.cost << ' ' << t.select << ' ' << t.total << ' ' << cpu << ' '
                                    << r.hypotheses_total << ' ' << double(r.peak_chunk_bytes) / 1048576.0
                                    << ' ' << double(bench::status_kb("VmHWM")) / 1024.0 << ' '
-                                   << 0.5 * (load_before + load_average()) << ' ' << in.instances.size()
-                                   << '\n';
+                                   << 0.5 * (load_before + bench::load_average()) << ' '
+                                   << in.instances.size() << '\n';
     wall += t.total;
     ++done;  // before the call: its arguments' evaluation order is unspecified
     cli::print_progress(stderr, done, int(images.size()), wall / done, t.total);
@@ -338,7 +339,7 @@ int main(int argc, char** argv) try {
     return 0;
   }
   std::printf("bench_sixdof: %s, %d OpenMP threads, load average %.2f at start\n", bench::cpu_model().c_str(),
-              omp_get_max_threads(), load_average());
+              omp_get_max_threads(), bench::load_average());
   if (generate(o.dir + "/dataset", o.scenes, o.seed)) fs::remove_all(o.dir + "/results");
   std::vector<Row> rows;
   for (const std::string& masks : o.masks)
@@ -356,7 +357,7 @@ int main(int argc, char** argv) try {
       rows.push_back(evaluate(o, name, dir));
     }
   print_tables(rows);
-  std::printf("load average %.2f at the end\n", load_average());
+  std::printf("load average %.2f at the end\n", bench::load_average());
   return 0;
 } catch (const std::exception& e) {
   std::fprintf(stderr, "bench_sixdof: %s\n", e.what());

@@ -58,6 +58,13 @@ inline std::string cpu_model() {
   return "unknown CPU";
 }
 
+/// The 1-minute load average (other jobs sharing the cores), 0 if unknown.
+inline double load_average() {
+  double l = 0;
+  std::ifstream("/proc/loadavg") >> l;
+  return l;
+}
+
 /// A field of /proc/self/status in KiB (VmRSS: resident now, VmHWM: peak resident).
 inline long status_kb(const char* field) {
   std::ifstream f("/proc/self/status");

@@ -4,6 +4,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <utility>
 #include <vector>
 
 #include "perch2/search/proposals.hpp"
@@ -291,6 +292,7 @@ TEST_CASE_TEMPLATE("6-DoF: poses recovered to ADD-S < 1 cm with ground-truth mas
   const SixDofEstimator<B> estimator(sixdof_models(s.models), test_settings());
   const SixDofResult r = estimator.estimate(s.rgbd, s.instances);
   REQUIRE(r.poses.size() == s.instances.size());
+  CHECK(r.fits_kept > 0);  // the final surface fit ran and was kept for some instance
   INFO("hypotheses " << r.hypotheses_total << " in " << r.chunks << " chunks; render " << r.timings.render
                      << " s, refine " << r.timings.refine << " s, cost " << r.timings.cost << " s, total "
                      << r.timings.total << " s");
@@ -530,6 +532,29 @@ TEST_CASE("6-DoF: bad local-search settings raise clear errors") {
         SixDofEstimator<cpu::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, {s.instances[0]}),
         doctest::Contains("local"), InvalidInput);
   }
+}
+
+TEST_CASE("6-DoF: bad final-fit settings raise clear errors") {
+  const Scene6 s = make_scene(3, {0, 5, 7});
+  using Mutate = void (*)(SixDofSettings&);
+  const std::pair<Mutate, const char*> cases[] = {
+      {+[](SixDofSettings& b) { b.fit_stride = 0; }, "fit_stride"},
+      {+[](SixDofSettings& b) { b.fit_cost_slack = -1; }, "fit_cost_slack"},
+      {+[](SixDofSettings& b) { b.fit.tukey_c = 0; }, "tukey_c"},
+      {+[](SixDofSettings& b) { b.fit.iterations = -1; }, "iterations"},
+      {+[](SixDofSettings& b) { b.fit.neighbours = 0; }, "neighbours"}};
+  for (const auto& [bad, name] : cases) {
+    SixDofSettings b = test_settings();
+    b.proposals.viewpoints = 2, b.proposals.inplane_rotations = 1, b.proposals.max_depths = 1;
+    bad(b);
+    CHECK_THROWS_WITH_AS(
+        SixDofEstimator<cpu::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, {s.instances[0]}),
+        doctest::Contains(name), InvalidInput);
+  }
+  SixDofSettings b = test_settings();
+  b.fit_sample_spacing_m = 0;
+  CHECK_THROWS_WITH_AS(SixDofEstimator<cpu::Backend>(sixdof_models(s.models), b),
+                       doctest::Contains("sample_spacing_m"), InvalidInput);
 }
 
 TEST_CASE("6-DoF: bad inputs raise clear errors") {

@@ -685,6 +685,59 @@ TEST_CASE("simulated detector: masks within the boundary shift, misses, spurious
   CHECK_THROWS_AS(simulate_detections(f, {1}, models, s, rng), InvalidInput);  // one obj_id per object
 }
 
+TEST_CASE("degrade_mask: seeded, each error does what it says, bad settings rejected") {
+  MaskImage mask(160, 120, 0);  // an 80 x 60 px ellipse
+  for (int v = 0; v < mask.height; ++v)
+    for (int u = 0; u < mask.width; ++u)
+      if (std::pow((u - 80) / 40.0, 2) + std::pow((v - 60) / 30.0, 2) <= 1) mask(u, v) = 255;
+  auto area = [](const MaskImage& m) {
+    return std::count_if(m.data.begin(), m.data.end(), [](auto x) { return x != 0; });
+  };
+  auto overlap = [](const MaskImage& a, const MaskImage& b) {
+    long n = 0;
+    for (std::size_t i = 0; i < a.data.size(); ++i) n += a.data[i] && b.data[i];
+    return n;
+  };
+  const long full = long(area(mask));
+  {  // same stream, same mask; the default degradation stays a detector's mask of the object
+    Rng a = Rng::stream(1, 2, 3), b = Rng::stream(1, 2, 3);
+    CHECK(degrade_mask(mask, MaskDegradation{}, a).data == degrade_mask(mask, MaskDegradation{}, b).data);
+    int changed = 0;
+    for (std::uint64_t s = 0; s < 20; ++s) {
+      Rng r = Rng::stream(7, s);
+      const MaskImage d = degrade_mask(mask, MaskDegradation{}, r);
+      changed += d.data != mask.data;
+      const long both = overlap(d, mask), either = long(area(d)) + full - both;
+      CHECK(double(both) / double(either) > 0.5);  // IoU
+    }
+    CHECK(changed == 20);
+  }
+  MaskDegradation none;
+  none.boundary_shift_px = none.boundary_wobble_px = none.offset_px = 0;
+  none.bleed_probability = none.cut_probability = 0;
+  Rng r(5);
+  CHECK(degrade_mask(mask, none, r).data == mask.data);
+  MaskDegradation bleed = none, cut = none;
+  bleed.bleed_probability = 1, cut.cut_probability = 1;
+  const MaskImage bled = degrade_mask(mask, bleed, r), cut_mask = degrade_mask(mask, cut, r);
+  CHECK(overlap(bled, mask) == full);  // only adds
+  CHECK(long(area(bled)) > full);
+  CHECK(long(area(cut_mask)) == overlap(cut_mask, mask));  // only removes
+  CHECK(long(area(cut_mask)) < full);
+  MaskDegradation shift = none;
+  shift.offset_px = 2;
+  for (int k = 0; k < 5; ++k) CHECK(long(area(degrade_mask(mask, shift, r))) <= full);  // moved, not grown
+  for (auto bad :
+       {+[](MaskDegradation& d) { d.boundary_shift_px = -1; }, +[](MaskDegradation& d) { d.offset_px = NAN; },
+        +[](MaskDegradation& d) { d.bleed_probability = 1.5f; },
+        +[](MaskDegradation& d) { d.cut_probability = -0.1f; },
+        +[](MaskDegradation& d) { d.blob_size = -1; }}) {
+    MaskDegradation d;
+    bad(d);
+    CHECK_THROWS_WITH_AS(degrade_mask(mask, d, r), doctest::Contains("MaskDegradation::"), InvalidInput);
+  }
+}
+
 TEST_CASE("a tiny camera still gives a complete dataset (no size assumptions in the detector or noise)") {
   DatasetSettings s = small_dataset(Mode::SixDof, 5);
   s.images_per_scene = 1;

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <string>
+#include <utility>
 
 #include "noise_field.hpp"
 
@@ -51,6 +53,48 @@ std::array<int, 4> jitter_box(std::array<int, 4> b, float jitter, int W, int H, 
 }
 
 }  // namespace
+
+MaskImage degrade_mask(const MaskImage& visible, const MaskDegradation& d, Rng& rng) {
+  const std::pair<const char*, float> sizes[] = {{"boundary_shift_px", d.boundary_shift_px},
+                                                 {"boundary_wobble_px", d.boundary_wobble_px},
+                                                 {"offset_px", d.offset_px},
+                                                 {"blob_size", d.blob_size}};
+  for (const auto& [name, v] : sizes)
+    if (!(std::isfinite(v) && v >= 0))
+      throw InvalidInput(std::string("MaskDegradation::") + name, "must be finite and >= 0");
+  for (const auto& [name, p] : {std::pair<const char*, float>{"bleed_probability", d.bleed_probability},
+                                {"cut_probability", d.cut_probability}})
+    if (!(p >= 0 && p <= 1)) throw InvalidInput(std::string("MaskDegradation::") + name, "must be in [0, 1]");
+  const float shift = rng.uniform(-1.f, 1.f) * d.boundary_shift_px;
+  const int du = int(std::lround(rng.uniform(-1.f, 1.f) * d.offset_px)),
+            dv = int(std::lround(rng.uniform(-1.f, 1.f) * d.offset_px));
+  const bool bleed = rng.chance(d.bleed_probability), cut = rng.chance(d.cut_probability);
+  MaskImage out = degrade(visible, shift, d.boundary_wobble_px, rng);
+  MaskImage moved(out.width, out.height, 0);
+  for (int v = 0; v < out.height; ++v)
+    for (int u = 0; u < out.width; ++u)
+      if (u - du >= 0 && u - du < out.width && v - dv >= 0 && v - dv < out.height)
+        moved(u, v) = out(u - du, v - dv);
+  out = std::move(moved);
+  // A blob on a random pixel of the boundary of the mask so far, sized by its box.
+  auto blob = [&](std::uint8_t value) {
+    const auto box = mask_bbox(out);
+    if (box[0] < 0) return;
+    cv::Mat m = as_mat(out), eroded;
+    cv::erode(m, eroded, cv::Mat());
+    std::vector<cv::Point> boundary;
+    for (int v = 0; v < out.height; ++v)
+      for (int u = 0; u < out.width; ++u)
+        if (out(u, v) && !eroded.at<uchar>(v, u)) boundary.push_back({u, v});
+    const cv::Point c = boundary[std::size_t(rng.integer(0, int(boundary.size()) - 1))];
+    const int ru = std::max(1, int(std::lround(rng.uniform(0.5f, 1.f) * d.blob_size * float(box[2] + 1))));
+    const int rv = std::max(1, int(std::lround(rng.uniform(0.5f, 1.f) * d.blob_size * float(box[3] + 1))));
+    cv::ellipse(m, c, {ru, rv}, rng.uniform(0.f, 180.f), 0, 360, value, cv::FILLED);
+  };
+  if (bleed) blob(255);
+  if (cut) blob(0);
+  return out;
+}
 
 std::vector<std::uint32_t> coco_rle_counts(const MaskImage& mask) {
   std::vector<std::uint32_t> counts;

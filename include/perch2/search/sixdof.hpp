@@ -35,6 +35,10 @@
 //              or bottle about its axis, which GICP cannot see
 //              then one more tight GICP pass (polish) and a re-render
 //   select     the lowest final cost per instance at the searched poses (acceptable first)
+//   fit        the selected pose of each instance fitted onto its observed points at full resolution
+//              (fit_stride): robust point-to-surface, observed -> model
+//              (perch2/registration/surface_fit.hpp), re-scored there and kept unless the final cost rose
+//              (fit_cost_slack)
 //   score      1 - (rendered outliers + unexplained observed points) / (rendered + observed points), in
 //              [0, 1]: the fraction of both clouds that the pose explains (BOP's score column)
 #pragma once
@@ -58,6 +62,7 @@
 #include "perch2/core/pose.hpp"
 #include "perch2/cost/cost.hpp"
 #include "perch2/registration/registration.hpp"
+#include "perch2/registration/surface_fit.hpp"
 #include "perch2/render/render.hpp"
 #include "perch2/search/local_search.hpp"
 #include "perch2/search/proposals.hpp"
@@ -193,6 +198,20 @@ struct SixDofSettings {
   float trim_margin_m = 0.03f;   ///< metres; < 0 turns trimming off
   int min_rendered_points = 10;  ///< a hypothesis showing fewer points (at score_stride) is not selected
   LocalSearchSettings local;     ///< after the second pass: turns about the model's axes (see above)
+  /// The last step (file comment, "fit"): the selected pose's robust fit onto the instance's observed
+  /// points on the fit_stride grid (fit.iterations = 0: off). The rest of the search works on stride
+  /// 2-8 grids and rendered clouds, whose sampling and silhouettes leave the pose a few millimetres off;
+  /// every reading of the object constrains this fit. On the 29 real Kinect frames of the LINEMOD cat
+  /// (ground-truth masks) it took the mean ADD from 3.6 to 3.0 mm and BOP AR from 0.938 to 0.958.
+  SurfaceFitSettings fit;
+  int fit_stride = 1;  ///< observed pixels of the fit on this grid (>= 1; 1 = every reading)
+  /// Model surface samples of the fit about this far apart, metres (> 0). Read when the estimator is built.
+  float fit_sample_spacing_m = 0.0015f;
+  /// The fitted pose is kept only if its final cost (SixDofSettings::cost at score_stride) is at most the
+  /// selected pose's plus this fraction of the points that cost counts (>= 0). The fit pulls every reading
+  /// onto the model but nothing pulls the model onto the readings: with one face of a block in view it may
+  /// slide along the face while the readings stay on it, and the cost's rendered-point term sees that.
+  float fit_cost_slack = 0.01f;
   /// Working memory of the hypotheses in flight (rendered, refined and scored clouds and the registration's
   /// per-point state), bytes; the hypotheses are processed in chunks that fit (at least one hypothesis per
   /// chunk). The renderer's own working memory is RenderSettings::memory_budget_bytes.
@@ -213,6 +232,7 @@ struct SixDofPose {
 struct SixDofTimings {  ///< seconds, wall clock
   double observed = 0, proposals = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0;
   double local = 0;  ///< the local search (its renders and costs are also in render and cost)
+  double fit = 0;    ///< the final surface fit (its re-score's render and cost are in render and cost)
 };
 
 struct SixDofResult {
@@ -225,6 +245,7 @@ struct SixDofResult {
   std::size_t hypotheses_total = 0, chunks = 0, chunk_hypotheses = 0;
   std::size_t second_pass_hypotheses = 0;  ///< hypotheses kept for the second pass (all instances)
   std::size_t local_candidates = 0;        ///< turned poses the local search rendered and scored
+  std::size_t fits_kept = 0;               ///< instances whose final surface fit was kept (fit_cost_slack)
   /// First-pass hypotheses refined by GICP after the warm-up's de-duplication (hypotheses_total without it)
   std::size_t first_pass_distinct = 0;
   /// Largest chunk's estimated working memory (its rendered points x bytes_per_point), bytes.
@@ -268,7 +289,10 @@ class SixDofEstimator {
   /// Validates the models and uploads them to the backend's renderer. Throws InvalidInput on no models or a
   /// bad mesh.
   explicit SixDofEstimator(std::vector<SixDofModel> models, SixDofSettings settings = {})
-      : models_(std::move(models)), settings_(std::move(settings)), renderer_(meshes_of(models_)) {
+      : models_(std::move(models)),
+        settings_(std::move(settings)),
+        renderer_(meshes_of(models_)),
+        surface_fit_(meshes_of(models_), settings_.fit_sample_spacing_m) {
     for (const auto& m : models_) diameter_.push_back(sixdof_detail::model_diameter_bound(m.mesh));
   }
 
@@ -422,6 +446,11 @@ class SixDofEstimator {
       best[k].cost = final_costs[h];
     }
     result.timings.select += seconds_since(t);
+    if (s.fit.iterations > 0) {
+      t = Clock::now();
+      fit_poses(frame, labels, occluders, cost, points_estimate, best, result);
+      result.timings.fit += seconds_since(t);
+    }
     for (auto& p : best) {
       const CostBreakdown& b = p.cost;
       const float n = float(b.rendered_points + b.observed_in_volume);
@@ -462,6 +491,10 @@ class SixDofEstimator {
     if (s.local.levels < 0 || s.local.moves_per_level < 0)
       throw InvalidInput("SixDofSettings::local.levels/moves_per_level", "must be >= 0");
     if (s.local.stride < 1) throw InvalidInput("SixDofSettings::local.stride", "must be >= 1");
+    surface_fit_detail::check(s.fit);
+    if (s.fit_stride < 1) throw InvalidInput("SixDofSettings::fit_stride", "must be >= 1");
+    if (!(std::isfinite(s.fit_cost_slack) && s.fit_cost_slack >= 0))
+      throw InvalidInput("SixDofSettings::fit_cost_slack", "must be finite and >= 0");
     if (!(s.trim_quantile_low >= 0 && s.trim_quantile_low <= s.trim_quantile_high &&
           s.trim_quantile_high <= 1))
       throw InvalidInput("SixDofSettings::trim_quantile_*", "need 0 <= low <= high <= 1");
@@ -509,6 +542,42 @@ class SixDofEstimator {
       if (labels.data[i] == label && depth.data[i] > 0 && (depth.data[i] < lo || depth.data[i] > hi))
         labels.data[i] = 0, ++dropped;
     return dropped;
+  }
+
+  /// The final fit (SixDofSettings::fit) of every found pose onto its instance's observed points on the
+  /// fit_stride grid (the pixels labelled with it after trimming), then the cost at the fitted pose.
+  void fit_poses(const RgbdFrame& frame, const LabelImage& labels, const Occluders& occ,
+                 const typename Backend::Cost& cost, const std::vector<std::size_t>& points_estimate,
+                 std::vector<SixDofPose>& best, SixDofResult& result) const {
+    const SixDofSettings& s = settings_;
+    CloudBatch support;
+    std::vector<int> model;
+    std::vector<Pose> start;
+    std::vector<std::size_t> which;
+    for (std::size_t k = 0; k < best.size(); ++k) {
+      if (!best[k].found) continue;
+      for (int v = 0; v < frame.camera.height; v += s.fit_stride)
+        for (int u = 0; u < frame.camera.width; u += s.fit_stride)
+          if (const float d = frame.depth_m(u, v);
+              labels(u, v) == std::int32_t(k + 1) && observed_detail::keep(d, s.observed))
+            observed_detail::append_pixel(frame, u, v, d, std::int32_t(which.size()), support);
+      support.offsets.push_back(std::int64_t(support.size()));
+      model.push_back(best[k].model), start.push_back(best[k].T_cam_obj), which.push_back(k);
+    }
+    if (which.empty()) return;
+    const SurfaceFitResult r = surface_fit_.fit(support, model, start, s.fit);
+    std::vector<Hypothesis> fitted;
+    for (std::size_t i = 0; i < which.size(); ++i)
+      fitted.push_back({model[i], r.T_cam_obj[i], std::int32_t(which[i] + 1)});
+    const std::vector<CostBreakdown> c =
+        score(frame, occ, cost, fitted, s.score_stride, s.cost, points_estimate, result);
+    for (std::size_t i = 0; i < which.size(); ++i) {
+      SixDofPose& p = best[which[i]];
+      const float slack = s.fit_cost_slack * float(p.cost.rendered_points + p.cost.observed_in_volume);
+      if (c[i].rendered_points < s.min_rendered_points || c[i].total > p.cost.total + slack) continue;
+      p.T_cam_obj = r.T_cam_obj[i], p.cost = c[i];
+      ++result.fits_kept;
+    }
   }
 
   CloudBatch render(const std::vector<Hypothesis>& h, const Intrinsics& camera, int stride,
@@ -803,6 +872,7 @@ class SixDofEstimator {
   std::vector<SixDofModel> models_;
   SixDofSettings settings_;
   typename Backend::Renderer renderer_;
+  SurfaceFit<Backend> surface_fit_;
   std::vector<float> diameter_;  ///< per model, an upper bound (2 x the largest vertex distance), metres
 };
 

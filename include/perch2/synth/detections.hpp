@@ -46,6 +46,25 @@ PERCH2_API std::vector<Detection> simulate_detections(const Frame& frame, const 
                                                       const std::vector<ObjectModel>& all_models,
                                                       const DetectionSettings& settings, Rng& rng);
 
+/// What degrade_mask() does to a visible mask: the errors of a real instance detector's masks, to measure
+/// how much they cost on data that has only exact masks (e.g. real frames with ground-truth mask_visib).
+struct MaskDegradation {
+  float boundary_shift_px = 3.f;   ///< the boundary grows or shrinks by up to this (uniform +-), pixels
+  float boundary_wobble_px = 2.f;  ///< amplitude of a smooth random boundary displacement, pixels
+  float offset_px = 2.f;           ///< the whole mask moves by up to this in u and in v (uniform +-), pixels
+  /// Chance that the mask bleeds: a blob centred on a random boundary pixel is added (onto the table, a
+  /// neighbour or the background next to the object).
+  float bleed_probability = 0.35f;
+  float cut_probability = 0.35f;  ///< chance that a blob centred on a random boundary pixel is cut away
+  /// A bleed or cut blob is an ellipse whose radii are uniform in [0.5, 1] x this x the mask box's width
+  /// and height (independently), at a random angle.
+  float blob_size = 0.3f;
+};
+
+/// `visible` (non-zero = inside) degraded as `d` says (boundary, offset, bleed, cut, in that order). May
+/// return an empty mask when `visible` is tiny.
+PERCH2_API MaskImage degrade_mask(const MaskImage& visible, const MaskDegradation& d, Rng& rng);
+
 /// COCO run-length encoding (column-major runs, starting with background) as pycocotools' compressed string.
 PERCH2_API std::string coco_rle_string(const MaskImage& mask);
 /// The same runs as a list (COCO's uncompressed form).
