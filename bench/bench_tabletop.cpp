@@ -228,7 +228,7 @@ int main(int argc, char** argv) try {
     }
   };
   table("ADD-S AUC (0-10 cm) / ADD-S < 1 cm", &eval::Scores::auc_adds, &eval::Scores::adds_below_1cm);
-  table("ADD AUC / ADD(-S) AUC (0-10 cm)", &eval::Scores::auc_add, &eval::Scores::auc_add_s);
+  table("ADD AUC / ADD(-S) AUC (0-10 cm)", &eval::Scores::auc_add, &eval::Scores::auc_add_or_adds);
   std::printf(
       "\nmean seconds per scene by stage (yaw: the yaw search, its renders and costs also in render and "
       "cost), process CPU seconds per scene, peak resident memory:\n");

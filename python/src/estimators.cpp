@@ -496,6 +496,20 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ls, LocalSearchSettings, select_by_local_cost);
   PERCH2_RW(ls, LocalSearchSettings, cost);
 
+  nb::class_<SurfaceFitSettings> fs(m, "SurfaceFitSettings", doc("SurfaceFitSettings"));
+  fs.def(nb::init<>());
+  PERCH2_RW(fs, SurfaceFitSettings, iterations);
+  PERCH2_RW(fs, SurfaceFitSettings, max_distance_m);
+  PERCH2_RW(fs, SurfaceFitSettings, tukey_c);
+  PERCH2_RW(fs, SurfaceFitSettings, min_scale_m);
+  PERCH2_RW(fs, SurfaceFitSettings, neighbours);
+  PERCH2_RW(fs, SurfaceFitSettings, min_points);
+  PERCH2_RW(fs, SurfaceFitSettings, min_curvature_ratio);
+  PERCH2_RW(fs, SurfaceFitSettings, translation_epsilon_m);
+  PERCH2_RW(fs, SurfaceFitSettings, rotation_epsilon_rad);
+  PERCH2_RW(fs, SurfaceFitSettings, max_step_m);
+  PERCH2_RW(fs, SurfaceFitSettings, max_step_rad);
+
   nb::class_<SixDofSettings> ss(m, "SixDofSettings", doc("SixDofSettings"));
   ss.def(nb::init<>());
   PERCH2_RW(ss, SixDofSettings, proposals);
@@ -518,6 +532,10 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ss, SixDofSettings, trim_margin_m);
   PERCH2_RW(ss, SixDofSettings, min_rendered_points);
   PERCH2_RW(ss, SixDofSettings, local);
+  PERCH2_RW(ss, SixDofSettings, fit);
+  PERCH2_RW(ss, SixDofSettings, fit_stride);
+  PERCH2_RW(ss, SixDofSettings, fit_sample_spacing_m);
+  PERCH2_RW(ss, SixDofSettings, fit_cost_slack);
   PERCH2_RW(ss, SixDofSettings, memory_budget_bytes);
   PERCH2_RW(ss, SixDofSettings, bytes_per_point);
 
@@ -540,6 +558,7 @@ void bind_estimators(nb::module_& m) {
                              {"refine", &SixDofTimings::refine},
                              {"cost", &SixDofTimings::cost},
                              {"select", &SixDofTimings::select},
+                             {"fit", &SixDofTimings::fit},
                              {"total", &SixDofTimings::total}})
     st.def_ro(name, field, "seconds, wall clock");
   PERCH2_RO(st, SixDofTimings, local);
@@ -557,6 +576,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(sr, SixDofResult, local_candidates);
   PERCH2_RO(sr, SixDofResult, first_pass_distinct);
   PERCH2_RO(sr, SixDofResult, peak_chunk_bytes);
+  PERCH2_RO(sr, SixDofResult, fits_kept);
   PERCH2_RO(sr, SixDofResult, timings);
 
   static const std::string sixdof_doc = estimator_doc(
