@@ -188,6 +188,14 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     assert t.workspace_xy_m is None
     t.icp.up_cam = [0.0, 0.0, 1.0]
     np.testing.assert_array_equal(t.icp.up_cam, [0, 0, 1])
+    # the 3-DoF yaw search and the 6-DoF final surface fit, defaults from their C++ structs
+    assert t.yaw_search.enabled and t.yaw_search.turns.sweep_turns == 72 and t.yaw_search.turns.sweep_starts == 3
+    assert t.yaw_search.cost.color_rule == perch2.ColorRule.Nearest
+    t.yaw_search.enabled = False
+    assert not t.yaw_search.enabled
+    assert s.fit.iterations == 20 and s.fit_stride == 1 and s.fit_cost_slack == pytest.approx(0.01)
+    s.fit.iterations = 0
+    assert s.fit.iterations == 0
 
 
 def test_docstrings_are_the_cpp_comments():
