@@ -268,7 +268,7 @@ TEST_CASE("A block turned 180 degrees about a symmetry axis scores MSSD 0") {
   CHECK(r.overall.ar_vsd == doctest::Approx(1.0));  // same surface, same depth
 }
 
-TEST_CASE("A dropped estimate is a miss; a low-scored decoy is ignored; a high-scored one is not") {
+TEST_CASE("A dropped estimate is a miss, a low-scored decoy is ignored, a high-scored one is not") {
   auto ests = fixture().truth();
   SUBCASE("dropped") {
     ests.erase(ests.begin() + 2);  // the blob in image 0
@@ -301,7 +301,7 @@ TEST_CASE("A dropped estimate is a miss; a low-scored decoy is ignored; a high-s
   }
 }
 
-TEST_CASE("Two instances of one object are matched whatever the row order; non-targets are counted") {
+TEST_CASE("Two instances of one object are matched whatever the row order, non-targets are counted") {
   auto ests = fixture().truth();
   std::swap(ests[3], ests[4]);  // the two blocks of image 1
   PoseEstimate stray = ests[2];

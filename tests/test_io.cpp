@@ -265,7 +265,7 @@ TEST_CASE("PLY float colours in [0, 1], per-vertex and per-face texture coordina
   }
 }
 
-TEST_CASE("OBJ with MTL, texture, quads and Kd; OBJ vertex colours; load_mesh dispatch") {
+TEST_CASE("OBJ with MTL, texture, quads and Kd, OBJ vertex colours, load_mesh dispatch") {
   const std::string tex_path = temp_path("obj_texture.png");
   perch2::io::save_color_image(tex_path, test_texture());
   write_file(temp_path("quad.mtl"),

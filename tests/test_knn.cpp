@@ -552,7 +552,7 @@ TEST_CASE("cpu radius_visit visits exactly the points within the bound (brute fo
     index.radius_visit(origin, 1, c);
     CHECK(c.seen.size() == 13);  // 1 + 4 + 4 (diagonal 0.125) + 4 on the radius
   }
-  SUBCASE("a negative bound ends the search; empty segments visit nothing; bad segment throws") {
+  SUBCASE("a negative bound ends the search, empty segments visit nothing, bad segment throws") {
     const float p[3] = {0.f, 0.f, 0.75f};
     Collect c(0.1f);
     c.stop_after = 1;

@@ -524,7 +524,7 @@ TEST_CASE_TEMPLATE("a hypothesis that hits max_iterations keeps its last iterate
   CHECK(std::isfinite(r.final_error[0]));
 }
 
-TEST_CASE_TEMPLATE("segments are isolated; empty clouds and segments give a defined result", B,
+TEST_CASE_TEMPLATE("segments are isolated, empty clouds and segments give a defined result", B,
                    PERCH2_CPU_RUNNABLE_BACKENDS) {
   const Scene& sc = scene();
   // Targets: segment 0 = the object, segment 1 = empty, segment 2 = the object shifted by 3 cm (a decoy

@@ -295,7 +295,7 @@ TEST_CASE_TEMPLATE("observed depth and labels occlude rendered pixels", B, PERCH
     CHECK(count_left(c) == 0);
     CHECK(c.size() == all - left);
   }
-  SUBCASE("labels: the hypothesis' own pixels never occlude it; others and background do") {
+  SUBCASE("labels: the hypothesis' own pixels never occlude it, others and background do") {
     occ.labels = LabelImage(K.width, K.height, 0);
     for (int v = 0; v < K.height / 2; ++v)
       for (int u = 0; u < K.width / 2; ++u) occ.labels(u, v) = 7;  // top-left: the object itself

@@ -257,7 +257,7 @@ TEST_CASE("hypotheses that ICP leaves mostly unmatched (bare table) are dropped 
   MESSAGE("scored at the coarse stride: " << pruned.hypotheses_coarse << " of " << all.hypotheses_coarse);
 }
 
-TEST_CASE("the depth-only cost cannot tell same-shape cans apart; the RGB-D cost can") {
+TEST_CASE("the depth-only cost cannot tell same-shape cans apart, the RGB-D cost can") {
   const float ax = 0.08f, ay = 0.06f, bx = -0.09f, by = -0.02f;
   const RgbdFrame frame = render_scene(can_meshes(), {{0, ax, ay, 0.3f}, {1, bx, by, 0.3f}});
   const cpu::Renderer renderer(can_meshes());
@@ -674,7 +674,7 @@ TEST_CASE("an unknown object (not among the models) neither attracts the cans no
   CHECK(pose_of(r, 0)->cost.rendered_points < 320);
 }
 
-TEST_CASE("the yaw search turns a printed can's label right; untextured models keep their pose") {
+TEST_CASE("the yaw search turns a printed can's label right, untextured models keep their pose") {
   // Built-in can_aqua (printed label, no symmetry), the untextured bowl (declared symmetric about z) and
   // the single-coloured block, on a generated table. ICP cannot turn a cylinder: without the yaw search the
   // can's yaw is what the grid (22.5 deg apart) and ICP's drift along its facets left, often 10 deg off.

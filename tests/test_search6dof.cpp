@@ -409,7 +409,7 @@ TEST_CASE("6-DoF: a mask bleeding onto the table is trimmed by depth consistency
 }
 
 // The chunking is backend-independent (the same loop hands chunks to any backend): tested on the reference.
-TEST_CASE("6-DoF: chunks under a memory budget; 10x the proposals run within the same budget") {
+TEST_CASE("6-DoF: chunks under a memory budget, 10x the proposals run within the same budget") {
   using B = cpu::Backend;
   const Scene6 s = make_scene(3, {0, 5, 7});
   SixDofSettings st = test_settings();

@@ -221,7 +221,7 @@ Pose reference_fit(const Mesh& m, const CloudBatch& obs, Pose start, const Surfa
 
 }  // namespace
 
-TEST_CASE_TEMPLATE("surface fit: outliers and edge readings cost little; equals a long-double reference", B,
+TEST_CASE_TEMPLATE("surface fit: outliers and edge readings cost little, equals a long-double reference", B,
                    PERCH2_CPU_RUNNABLE_BACKENDS) {
   const Mesh m = object();
   const Pose T = true_pose();
@@ -250,7 +250,7 @@ TEST_CASE_TEMPLATE("surface fit: outliers and edge readings cost little; equals 
   CHECK(add_m(m, r.T_cam_obj[0], ref) < 0.05e-3);
 }
 
-TEST_CASE("surface fit: readings without outliers give the true pose; a can's turn about its axis stays") {
+TEST_CASE("surface fit: readings without outliers give the true pose, a can's turn about its axis stays") {
   const Mesh m = object();
   const Pose T = true_pose();
   SurfaceFit<cpu::Backend> fit({m}, 0.001f);

@@ -200,7 +200,7 @@ TEST_CASE("built-in models: ids, closed outward surfaces, look-alike shapes with
   CHECK(open_or_inconsistent_edges(flipped) > 0);
 }
 
-TEST_CASE("built-in models: every declared symmetry maps the mesh onto itself; undeclared ones do not") {
+TEST_CASE("built-in models: every declared symmetry maps the mesh onto itself, undeclared ones do not") {
   const auto models = builtin_models();
   const ObjectModel& bowl = by_id(models, 7);
   const ObjectModel& block = by_id(models, 8);

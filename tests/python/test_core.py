@@ -189,7 +189,7 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     t.icp.up_cam = [0.0, 0.0, 1.0]
     np.testing.assert_array_equal(t.icp.up_cam, [0, 0, 1])
     # the 3-DoF yaw search and the 6-DoF final surface fit, defaults from their C++ structs
-    assert t.yaw_search.enabled and t.yaw_search.turns.sweep_turns == 72 and t.yaw_search.turns.sweep_starts == 3
+    assert t.yaw_search.enabled and t.yaw_search.turns.sweep_turns == 72 and t.yaw_search.turns.sweep_starts == 1
     assert t.yaw_search.cost.color_rule == perch2.ColorRule.Nearest
     t.yaw_search.enabled = False
     assert not t.yaw_search.enabled
