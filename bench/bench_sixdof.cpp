@@ -13,7 +13,10 @@
 //      to SCRATCH/results/CONFIG/instances.txt.
 // --masks det: detections_synth.json as a detector would give them (boundaries grown/shrunk and wobbly,
 // jittered boxes, misses, look-alike confusions, spurious ones); a missed instance counts as a failure.
-// Usage: bench_sixdof [--scenes N (20)] [--seed S (2020)] [--only A-B (all)] [--masks gt|det|both (both)]
+// --masks none: no masks; the targets' objects and instance counts are searched for in the whole frame
+// (SixDofEstimator::estimate_scene); instances not placed count as failures.
+// Usage: bench_sixdof [--scenes N (20)] [--seed S (2020)] [--only A-B (all)] [--masks gt|det|none|both
+// (both)]
 //                     [--backend cpu|thrust_omp|both (cpu)] [--dir SCRATCH (/tmp/perch2_bench_sixdof)]
 //                     [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]
 //                     [--local N (local search candidates per instance)] [--sweep N (its sweep turns)]
@@ -66,7 +69,7 @@ struct Options {
 };
 
 constexpr const char* kUsage =
-    "bench_sixdof [--scenes N] [--seed S] [--only A-B] [--masks gt|det|both] [--backend "
+    "bench_sixdof [--scenes N] [--seed S] [--only A-B] [--masks gt|det|none|both] [--backend "
     "cpu|thrust_omp|both]\n"
     "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]\n"
     "             [--local N] [--sweep N] [--dedupe 0|1] [--local-select 0|1] [--fit N]";
@@ -93,7 +96,8 @@ Options parse(int argc, char** argv) {
       if (o.first < 1 || o.last < o.first)
         throw InvalidInput("--only", "'" + v + "' is not A-B with 1 <= A <= B");
     } else if (a == "--masks") {
-      if (v != "gt" && v != "det" && v != "both") throw InvalidInput("--masks", "must be gt, det or both");
+      if (v != "gt" && v != "det" && v != "none" && v != "both")
+        throw InvalidInput("--masks", "must be gt, det, none or both");
       o.masks = v == "both" ? std::vector<std::string>{"gt", "det"} : std::vector<std::string>{v};
     } else if (a == "--backend") {
       o.backends = v == "both" ? std::vector<dataset::BackendKind>{dataset::BackendKind::Cpu,
@@ -198,14 +202,35 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
   double wall = 0;
   for (const auto& [key, targets] : images) {
     const dataset::BopImage image = data.load_image(key.first, key.second, load);
-    const BopInstances all =
-        masks == "gt" ? bop_instances_from_gt(image, model_of, BoxKind::Full)
-                      : bop_instances_from_detections(image, detections, detections_of[key], model_of);
-    const BopInstances in =
-        usable_instances(only_targets(all, targets), image.frame, estimator.settings().observed);
     const double load_before = bench::load_average(), cpu0 = cpu_seconds_now();
     SixDofResult r;
-    const auto rows = estimate_bop_image(estimator, image, in, &r);
+    std::vector<dataset::PoseEstimate> rows;
+    std::size_t instances = 0;
+    if (masks == "none") {  // no masks: the targets' objects and counts in the whole frame
+      std::map<int, int> count;
+      for (const auto& t : targets) count[model_of.at(t.obj_id)] += t.inst_count;
+      std::vector<SixDofObject> objects;
+      for (const auto& [m, n] : count) objects.push_back({m, n});
+      SixDofSceneResult sr = estimator.estimate_scene(image.frame, objects);
+      for (const auto& p : sr.poses) {
+        dataset::PoseEstimate e;
+        e.scene_id = key.first, e.im_id = key.second, e.score = p.score, e.T_cam_obj = p.T_cam_obj;
+        for (const auto& [id, m] : model_of)
+          if (m == p.model) e.obj_id = id;
+        e.time_s = sr.search.timings.total;
+        rows.push_back(e);
+      }
+      instances = sr.poses.size();
+      r = std::move(sr.search);
+    } else {
+      const BopInstances all =
+          masks == "gt" ? bop_instances_from_gt(image, model_of, BoxKind::Full)
+                        : bop_instances_from_detections(image, detections, detections_of[key], model_of);
+      const BopInstances in =
+          usable_instances(only_targets(all, targets), image.frame, estimator.settings().observed);
+      rows = estimate_bop_image(estimator, image, in, &r);
+      instances = in.instances.size();
+    }
     const double cpu = cpu_seconds_now() - cpu0;
     const std::string base = out_dir + "/" + dataset::bop_id(key.first);
     dataset::save_results_csv(base + ".csv", rows);
@@ -214,8 +239,7 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
                                    << ' ' << t.cost << ' ' << t.select << ' ' << t.total << ' ' << cpu << ' '
                                    << r.hypotheses_total << ' ' << double(r.peak_chunk_bytes) / 1048576.0
                                    << ' ' << double(bench::status_kb("VmHWM")) / 1024.0 << ' '
-                                   << 0.5 * (load_before + bench::load_average()) << ' '
-                                   << in.instances.size() << '\n';
+                                   << 0.5 * (load_before + bench::load_average()) << ' ' << instances << '\n';
     wall += t.total;
     ++done;  // before the call: its arguments' evaluation order is unspecified
     cli::print_progress(stderr, done, int(images.size()), wall / done, t.total);

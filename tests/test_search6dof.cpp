@@ -29,18 +29,9 @@ Pose rotation_pose(const Eigen::Vector3f& axis, float angle) {
   return T;
 }
 
-/// ADD-S (mean distance to the closest model point), metres, over the mesh's vertices.
+/// ADD-S over the mesh's vertices, metres.
 double adds(const Pose& est, const Pose& gt, const Mesh& mesh) {
-  std::vector<Eigen::Vector3f> g;
-  for (const auto& p : mesh.vertices) g.push_back(gt * p);
-  double sum = 0;
-  for (const auto& p : mesh.vertices) {
-    const Eigen::Vector3f e = est * p;
-    float best = INFINITY;
-    for (const auto& q : g) best = std::min(best, (e - q).squaredNorm());
-    sum += std::sqrt(double(best));
-  }
-  return sum / double(mesh.vertices.size());
+  return test::adds_vertices(est, gt, mesh);
 }
 
 /// ADD (mean distance between corresponding model points), metres, over the mesh's vertices.

@@ -3,11 +3,16 @@
 
 #include <doctest/doctest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <vector>
 
+#include "perch2/core/mesh.hpp"
+#include "perch2/core/pose.hpp"
 #include "perch2/cpu/backend.hpp"
 #include "perch2/cuda/backend.hpp"
 
@@ -24,6 +29,20 @@
 #define PERCH2_CPU_RUNNABLE_BACKENDS PERCH2_TEST_BACKENDS
 
 namespace perch2::test {
+
+/// ADD-S (mean distance to the closest model point), metres, over the mesh's vertices (brute force).
+inline double adds_vertices(const Pose& est, const Pose& gt, const Mesh& mesh) {
+  std::vector<Eigen::Vector3f> g;
+  for (const auto& p : mesh.vertices) g.push_back(gt * p);
+  double sum = 0;
+  for (const auto& p : mesh.vertices) {
+    const Eigen::Vector3f e = est * p;
+    float best = INFINITY;
+    for (const auto& q : g) best = std::min(best, (e - q).squaredNorm());
+    sum += std::sqrt(double(best));
+  }
+  return sum / double(mesh.vertices.size());
+}
 
 /// Path of a file under ../shared/data, or "" (with a printed notice) if this checkout has no shared data.
 inline std::string shared_data(const std::string& relative) {

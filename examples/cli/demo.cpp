@@ -25,7 +25,8 @@ namespace {
 using namespace perch2;
 
 constexpr const char* kUsage =
-    "usage: perch2 demo [--mode 3dof|6dof] [--out DIR] [--backend cpu|thrust_omp] [--seed S]\n"
+    "usage: perch2 demo [--mode 3dof|6dof] [--out DIR] [--backend cpu|thrust_omp] [--seed S] [--masks "
+    "gt|none]\n"
     "  generates a table scene with built-in models (cans cola/cherry/aqua: one shape, different labels, and "
     "a\n"
     "  a lime bottle) into DIR/dataset (BOP format), estimates their 3-DoF poses with PERCH 2.0-C and "
@@ -35,7 +36,9 @@ constexpr const char* kUsage =
     "generated\n"
     "  in memory; every instance's full pose from its ground-truth visible mask and full box\n"
     "  (SixDofEstimator, default settings); prints each pose's ADD-S and ADD(-S) error, score and the\n"
-    "  per-stage times; writes DIR/overlay_6dof.png (the image | the estimated models over it).\n";
+    "  per-stage times; writes DIR/overlay_6dof.png (the image | the estimated models over it).\n"
+    "  --mode 6dof --masks none: no masks; each of the six objects is searched for in the whole frame\n"
+    "  (SixDofEstimator::estimate_scene) and placed one by one; objects it cannot find are reported.\n";
 
 /// The demo's dataset: one image of four built-in models (obj_id 1-4), each once.
 dataset::BopDataset make_dataset(const std::string& dir, std::uint64_t seed,
@@ -115,8 +118,56 @@ ColorImage side_by_side(const ColorImage& a, const ColorImage& b) {
   return out;
 }
 
+/// --masks none: every model once, searched for in the whole frame.
 template <class Backend>
-int demo_6dof(const std::string& out, dataset::BackendKind backend, std::uint64_t seed) {
+int demo_6dof_scene(const Demo6& d, const SixDofEstimator<Backend>& estimator, const RgbdFrame& frame,
+                    const std::vector<Mesh>& meshes, const std::string& out) {
+  std::vector<SixDofObject> objects;
+  for (std::size_t m = 0; m < d.models.size(); ++m) objects.push_back({int(m), 1});
+  const SixDofSceneResult r = estimator.estimate_scene(frame, objects);
+  std::printf("  %zu segments (support plane %s), %zu (model, segment) searches, %zu candidates\n",
+              r.segments.size(), r.plane ? "found" : "none", r.jobs, r.candidates);
+  std::printf("\n  %-11s %-8s %7s %7s %7s %8s %10s %6s\n", "object", "overlay", "x m", "y m", "z m",
+              "ADD-S mm", "ADD(-S) mm", "score");
+  int adds_1cm = 0, add_s_2cm = 0;
+  std::vector<int> model_of_pose;
+  std::vector<Pose> poses;
+  for (std::size_t k = 0; k < r.poses.size(); ++k) {
+    const SixDofPose& p = r.poses[k];
+    const synth::ObjectModel& m = d.models[std::size_t(p.model)];
+    const eval::ModelPoints points(m.mesh.vertices);
+    double adds = INFINITY, add_s = INFINITY;  // against the ground truth of the same model
+    for (std::size_t g = 0; g < d.instances.size(); ++g)
+      if (d.instances[g].model == p.model) {
+        adds = eval::adds_error(p.T_cam_obj, d.gt[g], points);
+        add_s = m.symmetries.empty() ? eval::add_error(p.T_cam_obj, d.gt[g], m.mesh.vertices) : adds;
+      }
+    adds_1cm += adds < 0.01, add_s_2cm += add_s < 0.02;
+    const Eigen::Vector3f t = p.T_cam_obj.translation();
+    std::printf("  %-11s %-8s %7.3f %7.3f %7.3f %8.1f %10.1f %6.3f\n", m.name.c_str(),
+                cli::overlay_color_name(int(k)), t.x(), t.y(), t.z(), 1000 * adds, 1000 * add_s, p.score);
+    model_of_pose.push_back(p.model), poses.push_back(p.T_cam_obj);
+  }
+  for (std::size_t i = 0; i < objects.size(); ++i)
+    if (r.missing[i] > 0) std::printf("  %-11s not found\n", d.models[i].name.c_str());
+  std::printf("  %d / %zu visible instances within 1 cm ADD-S, %d within 2 cm ADD(-S)\n\n", adds_1cm,
+              d.instances.size(), add_s_2cm);
+  const SixDofTimings& t = r.search.timings;
+  std::printf("per-stage wall-clock seconds (%zu hypotheses):\n", r.search.hypotheses_total);
+  std::printf(
+      "  segment %.3f  observed %.3f  proposals %.3f  render %.3f  refine %.3f  cost %.3f  explain %.3f  "
+      "total %.3f\n",
+      t.segment, t.observed, t.proposals, t.render, t.refine, t.cost, t.explain, t.total);
+  std::filesystem::create_directories(out);
+  const ColorImage overlay = cli::draw_overlay(frame.rgb, frame.camera, meshes, model_of_pose, poses);
+  io::save_color_image(out + "/overlay_6dof.png", side_by_side(frame.rgb, overlay));
+  std::printf("wrote %s/overlay_6dof.png (left: the image; right: the estimated models over it)\n",
+              out.c_str());
+  return 0;
+}
+
+template <class Backend>
+int demo_6dof(const std::string& out, dataset::BackendKind backend, std::uint64_t seed, bool no_masks) {
   const Demo6 d = make_scene_6dof(seed);
   if (d.instances.empty()) throw InvalidInput("--seed", "this seed's scene shows no object well enough");
   std::vector<SixDofModel> models;
@@ -128,6 +179,14 @@ int demo_6dof(const std::string& out, dataset::BackendKind backend, std::uint64_
   const SixDofEstimator<Backend> estimator(std::move(models));
   RgbdFrame frame;
   frame.camera = d.frame.camera, frame.depth_m = d.frame.depth_m, frame.rgb = d.frame.rgb;
+  if (no_masks) {
+    std::printf(
+        "perch2 demo --mode 6dof --masks none: %zu objects piled on a table, %dx%d RGB-D, no masks, "
+        "%s (seed %llu)\n",
+        d.models.size(), frame.camera.width, frame.camera.height, dataset::backend_name(backend),
+        static_cast<unsigned long long>(seed));
+    return demo_6dof_scene(d, estimator, frame, meshes, out);
+  }
   std::printf(
       "perch2 demo --mode 6dof: %zu objects piled on a table (%d hidden), %dx%d RGB-D, ground-truth "
       "visible masks and full boxes, %s (seed %llu)\n",
@@ -240,18 +299,25 @@ int demo_3dof(const std::string& out, dataset::BackendKind b, std::uint64_t seed
 }
 
 int demo_command(int argc, char** argv) {
-  std::string out = "demo_out", backend = "thrust_omp", mode = "3dof", seed_text;
+  std::string out = "demo_out", backend = "thrust_omp", mode = "3dof", seed_text, masks = "gt";
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     if (a == "-h" || a == "--help") return std::cout << kUsage, 0;
-    if (k + 1 >= argc || (a != "--out" && a != "--backend" && a != "--seed" && a != "--mode")) {
+    if (k + 1 >= argc ||
+        (a != "--out" && a != "--backend" && a != "--seed" && a != "--mode" && a != "--masks")) {
       std::cerr << "perch2 demo: bad argument " << a << "\n\n" << kUsage;
       return 2;
     }
     const std::string v = argv[++k];
-    (a == "--out" ? out : a == "--backend" ? backend : a == "--mode" ? mode : seed_text) = v;
+    (a == "--out"       ? out
+     : a == "--backend" ? backend
+     : a == "--mode"    ? mode
+     : a == "--masks"   ? masks
+                        : seed_text) = v;
   }
   if (mode != "3dof" && mode != "6dof") throw InvalidInput("--mode", "'" + mode + "' is not 3dof or 6dof");
+  if (masks != "gt" && masks != "none") throw InvalidInput("--masks", "'" + masks + "' is not gt or none");
+  if (masks == "none" && mode != "6dof") throw InvalidInput("--masks", "none needs --mode 6dof");
   std::uint64_t seed = mode == "3dof" ? 7 : kSeed6dof;
   if (!seed_text.empty()) {
     try {
@@ -262,8 +328,8 @@ int demo_command(int argc, char** argv) {
   }
   const dataset::BackendKind b = dataset::parse_backend(backend);
   if (mode == "3dof") return demo_3dof(out, b, seed);
-  return b == dataset::BackendKind::Cpu ? demo_6dof<cpu::Backend>(out, b, seed)
-                                        : demo_6dof<thrust_omp::Backend>(out, b, seed);
+  return b == dataset::BackendKind::Cpu ? demo_6dof<cpu::Backend>(out, b, seed, masks == "none")
+                                        : demo_6dof<thrust_omp::Backend>(out, b, seed, masks == "none");
 }
 
 }  // namespace

@@ -122,6 +122,26 @@ SixDofInstance make_instance(int model, nb::handle mask, nb::handle box, const s
   return in;
 }
 
+/// Objects for estimate_scene from SixDofObject values or (model, count) pairs.
+std::vector<SixDofObject> objects_from(nb::handle objects) {
+  std::vector<SixDofObject> out;
+  std::size_t k = 0;
+  for (nb::handle o : objects) {
+    const std::string who = "objects[" + std::to_string(k++) + "]";
+    if (nb::isinstance<SixDofObject>(o)) {
+      out.push_back(nb::cast<SixDofObject>(o));
+      continue;
+    }
+    try {
+      const auto pair = nb::cast<std::pair<int, int>>(o);
+      out.push_back({pair.first, pair.second});
+    } catch (const nb::cast_error&) {
+      throw InvalidInput(who, "must be a perch2.SixDofObject or a (model, count) pair of ints");
+    }
+  }
+  return out;
+}
+
 /// Instances from SixDofInstance objects or (model, mask[, box]) tuples; masks checked against the frame.
 std::vector<SixDofInstance> instances_from(nb::handle instances, const RgbdFrame& frame) {
   std::vector<SixDofInstance> out;
@@ -536,6 +556,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ss, SixDofSettings, fit_stride);
   PERCH2_RW(ss, SixDofSettings, fit_sample_spacing_m);
   PERCH2_RW(ss, SixDofSettings, fit_cost_slack);
+  PERCH2_RW(ss, SixDofSettings, scene);
   PERCH2_RW(ss, SixDofSettings, memory_budget_bytes);
   PERCH2_RW(ss, SixDofSettings, bytes_per_point);
 
@@ -551,6 +572,81 @@ void bind_estimators(nb::module_& m) {
            ", score=" + std::to_string(p.score) + ", found=" + (p.found ? "True" : "False") + ")";
   });
 
+  nb::class_<SegmentationSettings> sgs(m, "SegmentationSettings", doc("SegmentationSettings"));
+  sgs.def(nb::init<>());
+  PERCH2_RW(sgs, SegmentationSettings, remove_plane);
+  PERCH2_RW(sgs, SegmentationSettings, plane);
+  PERCH2_RW(sgs, SegmentationSettings, plane_distance_m);
+  PERCH2_RW(sgs, SegmentationSettings, max_height_m);
+  PERCH2_RW(sgs, SegmentationSettings, min_depth_m);
+  PERCH2_RW(sgs, SegmentationSettings, max_depth_m);
+  PERCH2_RW(sgs, SegmentationSettings, jump_m);
+  PERCH2_RW(sgs, SegmentationSettings, jump_per_m);
+  PERCH2_RW(sgs, SegmentationSettings, min_area_fraction);
+  PERCH2_RW(sgs, SegmentationSettings, min_pixels);
+
+  nb::class_<TablePlane> tpl(m, "TablePlane", doc("TablePlane"));
+  PERCH2_RO(tpl, TablePlane, normal_cam);
+  PERCH2_RO(tpl, TablePlane, offset_m);
+  pose_prop(tpl, "T_cam_world", &TablePlane::T_cam_world, "TablePlane.T_cam_world");
+  PERCH2_RO(tpl, TablePlane, inliers);
+  PERCH2_RO(tpl, TablePlane, samples);
+
+  nb::class_<SceneSettings> scs(m, "SceneSettings", doc("SceneSettings"));
+  scs.def(nb::init<>());
+  PERCH2_RW(scs, SceneSettings, segmentation);
+  PERCH2_RW(scs, SceneSettings, min_area_fraction);
+  PERCH2_RW(scs, SceneSettings, max_area_faces);
+  PERCH2_RW(scs, SceneSettings, piece_extent_factor);
+  PERCH2_RW(scs, SceneSettings, max_pieces);
+  PERCH2_RW(scs, SceneSettings, min_segment_points);
+  PERCH2_RW(scs, SceneSettings, min_inlier_fraction);
+  PERCH2_RW(scs, SceneSettings, min_explained_points);
+  PERCH2_RW(scs, SceneSettings, explain_distance_m);
+
+  nb::class_<FrameSegment> fseg(m, "FrameSegment", doc("FrameSegment"));
+  PERCH2_RO(fseg, FrameSegment, label);
+  PERCH2_RO(fseg, FrameSegment, pixels);
+  PERCH2_RO(fseg, FrameSegment, area_m2);
+  PERCH2_RO(fseg, FrameSegment, box_xywh);
+  PERCH2_RO(fseg, FrameSegment, depth_min_m);
+  PERCH2_RO(fseg, FrameSegment, depth_max_m);
+  PERCH2_RO(fseg, FrameSegment, centroid_cam);
+  PERCH2_RO(fseg, FrameSegment, extent_m);
+
+  nb::class_<FrameSegments> fsegs(m, "FrameSegments", doc("FrameSegments"));
+  fsegs
+      .def_prop_ro(
+          "labels",
+          [](nb::handle self) {
+            LabelImage& l = nb::cast<FrameSegments&>(self).labels;
+            return view(l.data.data(), {std::size_t(l.height), std::size_t(l.width)}, self);
+          },
+          "H x W int32 (a view): 0 = support, background or dropped; k + 1 = segments[k]")
+      .def_ro("segments", &FrameSegments::segments, doc("FrameSegments.segments"))
+      .def_ro("plane", &FrameSegments::plane, doc("FrameSegments.plane"))
+      .def_ro("support_pixels", &FrameSegments::support_pixels, doc("FrameSegments.support_pixels"))
+      .def_ro("dropped_segments", &FrameSegments::dropped_segments, doc("FrameSegments.dropped_segments"));
+  m.def(
+      "segment_frame",
+      [](const RgbdFrame& frame, const SegmentationSettings& settings, float min_model_face_m2) {
+        nb::gil_scoped_release release;
+        return segment_frame(frame, settings, min_model_face_m2);
+      },
+      nb::arg("frame"), nb::arg("settings") = SegmentationSettings{}, nb::arg("min_model_face_m2") = 0.f,
+      doc("segment_frame"));
+
+  nb::class_<SixDofObject> sobj(m, "SixDofObject", doc("SixDofObject"));
+  sobj.def(nb::init<>())
+      .def(
+          "__init__",
+          [](SixDofObject* self, int model, int count) {
+            new (self) SixDofObject{model, count};
+          },
+          nb::arg("model"), nb::arg("count") = 1);
+  PERCH2_RW(sobj, SixDofObject, model);
+  PERCH2_RW(sobj, SixDofObject, count);
+
   nb::class_<SixDofTimings> st(m, "SixDofTimings", doc("SixDofTimings"));
   for (auto [name, field] : {std::pair{"observed", &SixDofTimings::observed},
                              {"proposals", &SixDofTimings::proposals},
@@ -562,6 +658,8 @@ void bind_estimators(nb::module_& m) {
                              {"total", &SixDofTimings::total}})
     st.def_ro(name, field, "seconds, wall clock");
   PERCH2_RO(st, SixDofTimings, local);
+  PERCH2_RO(st, SixDofTimings, segment);
+  PERCH2_RO(st, SixDofTimings, explain);
 
   nb::class_<SixDofResult> sr(m, "SixDofResult");
   PERCH2_RO(sr, SixDofResult, poses);
@@ -578,6 +676,17 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(sr, SixDofResult, peak_chunk_bytes);
   PERCH2_RO(sr, SixDofResult, fits_kept);
   PERCH2_RO(sr, SixDofResult, timings);
+
+  nb::class_<SixDofSceneResult> ssr(m, "SixDofSceneResult", doc("SixDofSceneResult"));
+  PERCH2_RO(ssr, SixDofSceneResult, poses);
+  PERCH2_RO(ssr, SixDofSceneResult, missing);
+  PERCH2_RO(ssr, SixDofSceneResult, segments);
+  PERCH2_RO(ssr, SixDofSceneResult, segment_points);
+  PERCH2_RO(ssr, SixDofSceneResult, plane);
+  PERCH2_RO(ssr, SixDofSceneResult, jobs);
+  PERCH2_RO(ssr, SixDofSceneResult, candidates);
+  PERCH2_RO(ssr, SixDofSceneResult, rounds);
+  PERCH2_RO(ssr, SixDofSceneResult, search);
 
   static const std::string sixdof_doc = estimator_doc(
       "file:perch2/search/sixdof.hpp", "SixDofEstimator.SixDofEstimator",
@@ -623,7 +732,26 @@ void bind_estimators(nb::module_& m) {
           nb::arg("depth_scale_m").none() = nb::none(),
           "depth: H x W float32 metres (0 = no reading) or uint16 with depth_scale_m; rgb: H x W x 3 uint8 "
           "or None;\n"
-          "K: 3 x 3 or perch2.Intrinsics; instances: [(model, mask, box), ...]. Copies the arrays once.");
+          "K: 3 x 3 or perch2.Intrinsics; instances: [(model, mask, box), ...]. Copies the arrays once.")
+      .def(
+          "estimate_scene",
+          [](const PySixDof& e, const RgbdFrame& frame, nb::handle objects) {
+            const std::vector<SixDofObject> in = objects_from(objects);
+            return e.call([&](const auto& x) { return x.estimate_scene(frame, in); });
+          },
+          nb::arg("frame"), nb::arg("objects"), doc("SixDofEstimator.estimate_scene"))
+      .def(
+          "estimate_scene",
+          [](const PySixDof& e, nb::handle depth, nb::handle rgb, nb::handle K, nb::handle objects,
+             std::optional<float> depth_scale_m) {
+            const RgbdFrame frame = frame_from(depth, rgb, K, depth_scale_m);
+            const std::vector<SixDofObject> in = objects_from(objects);
+            return e.call([&](const auto& x) { return x.estimate_scene(frame, in); });
+          },
+          nb::arg("depth"), nb::arg("rgb").none(), nb::arg("K"), nb::arg("objects"),
+          nb::arg("depth_scale_m").none() = nb::none(),
+          "No detector: objects are perch2.SixDofObject or (model, count) pairs; depth, rgb and K as in\n"
+          "estimate(). Copies the arrays once.");
 
   // ---- BOP 6-DoF glue (perch2/search/sixdof_bop.hpp)
   m.def("sixdof_model", &sixdof_model, nb::arg("mesh"), nb::arg("info"), doc("sixdof_model"));

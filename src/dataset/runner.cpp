@@ -102,6 +102,16 @@ Stages stages_of(const SixDofTimings& t) {
           {"cost", t.cost},         {"select", t.select},       {"total", t.total}};
 }
 
+/// --masks none: also the segmentation and the scene explanation, before "total".
+Stages scene_stages_of(const SixDofTimings& t) {
+  Stages out{{"segment", t.segment}};
+  for (const auto& st : stages_of(t))
+    if (st.first != "total") out.push_back(st);
+  out.push_back({"explain", t.explain});
+  out.push_back({"total", t.total});
+  return out;
+}
+
 }  // namespace
 
 struct BopRunner::Impl {
@@ -130,9 +140,41 @@ struct BopRunner::Impl {
     return out;
   }
 
+  /// --masks none: the targets' objects and counts searched for in the whole frame (estimate_scene).
+  template <class Backend>
+  ImageResult run_scene(const SixDofEstimator<Backend>& e, const BopImage& image,
+                        const std::vector<Target>& targets) const {
+    std::map<int, int> count;  // model -> instances asked for
+    for (const auto& t : targets) {
+      const auto it = model_of.find(t.obj_id);
+      if (it == model_of.end())
+        throw InvalidInput("target obj_id " + std::to_string(t.obj_id), "has no loaded model");
+      count[it->second] += t.inst_count;
+    }
+    std::vector<SixDofObject> objects;
+    for (const auto& [model, n] : count) objects.push_back({model, n});
+    ImageResult out;
+    SixDofSceneResult r = e.estimate_scene(image.frame, objects);
+    for (const auto& p : r.poses) {
+      PoseEstimate row;
+      row.scene_id = image.info.scene_id, row.im_id = image.info.im_id;
+      row.obj_id = obj_ids[std::size_t(p.model)];
+      row.score = p.score, row.T_cam_obj = p.T_cam_obj, row.time_s = r.search.timings.total;
+      out.rows.push_back(row), out.row_models.push_back(p.model), out.row_found.push_back(p.found);
+    }
+    for (const auto& t : targets) out.requested += t.inst_count;
+    for (const int m : r.missing) out.missing += m;
+    out.instances = int(r.poses.size());
+    out.stages = scene_stages_of(r.search.timings);
+    out.seconds = r.search.timings.total;
+    out.sixdof = std::move(r.search);
+    return out;
+  }
+
   template <class Backend>
   ImageResult run(const SixDofEstimator<Backend>& e, const BopImage& image,
                   const std::vector<Target>& targets) const {
+    if (options.masks == "none") return run_scene(e, image, targets);
     const std::pair<int, int> key{image.info.scene_id, image.info.im_id};
     const auto det = detections_of.find(key);
     static const std::vector<std::size_t> none;
@@ -173,9 +215,9 @@ BopRunner::BopRunner(const BopDataset& data, RunOptions options, std::vector<int
   m.obj_ids.erase(std::unique(m.obj_ids.begin(), m.obj_ids.end()), m.obj_ids.end());
   if (m.obj_ids.empty()) throw InvalidInput("dataset " + data.root(), "no target objects to estimate");
   for (const int id : m.obj_ids) m.model_of[id] = int(m.model_of.size());
-  if (m.options.mode == RunMode::SixDof && m.options.masks != "gt") {
+  if (m.options.mode == RunMode::SixDof && m.options.masks != "gt" && m.options.masks != "none") {
     if (!std::filesystem::is_regular_file(m.options.masks))
-      throw FileError(m.options.masks, "is not a detection file (masks: gt|FILE)");
+      throw FileError(m.options.masks, "is not a detection file (masks: gt|none|FILE)");
     m.detections = load_detections(m.options.masks);
     m.detections_of = detections_by_image(m.detections);
   }

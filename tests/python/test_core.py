@@ -204,3 +204,40 @@ def test_docstrings_are_the_cpp_comments():
     assert "6-DoF PERCH 2.0" in perch2.SixDofEstimator.__doc__
     assert "ADD(-S)" in perch2.Scores.auc_add_or_adds.__doc__
     assert "Grid" in dir(perch2.KnnMethod) and "uniform spatial grid" in perch2.KnnMethod.Grid.__doc__
+
+
+def _table_with_box(h=120, w=160, f=150.0):
+    """Depth of a camera 0.6 m above a table (z = 0.6 m everywhere) with a 6 cm cube on it."""
+    depth = np.full((h, w), 0.6, np.float32)
+    depth[50:70, 70:90] = 0.54  # the cube's top face, 6 cm nearer
+    rgb = np.full((h, w, 3), 128, np.uint8)
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]], np.float64)
+    return depth, rgb, K
+
+
+def test_segment_frame_removes_the_plane_and_labels_the_object():
+    depth, rgb, K = _table_with_box()
+    frame = perch2.RgbdFrame(depth, rgb, K)
+    s = perch2.segment_frame(frame, perch2.SegmentationSettings(), 0.0)
+    assert s.plane is not None and s.support_pixels > 10000
+    assert len(s.segments) == 1 and s.segments[0].pixels == 400
+    labels = s.labels
+    assert labels.dtype == np.int32 and labels.shape == depth.shape
+    assert (labels[50:70, 70:90] == 1).all() and labels.sum() == 400
+
+
+def test_estimate_scene_objects_and_bad_requests():
+    v, f = box_mesh(0.06)
+    est = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu")
+    depth, rgb, K = _table_with_box()
+    r = est.estimate_scene(depth, rgb, K, [(0, 1)])
+    assert len(r.missing) == 1 and len(r.poses) + r.missing[0] == 1
+    assert r.search.timings.total > 0 and len(r.segments) == 1
+    r2 = est.estimate_scene(perch2.RgbdFrame(depth, rgb, K), [perch2.SixDofObject(0, 0)])
+    assert r2.poses == [] and r2.missing == [0]
+    with pytest.raises(perch2.InvalidInput, match="unknown model"):
+        est.estimate_scene(depth, rgb, K, [(3, 1)])
+    with pytest.raises(perch2.InvalidInput, match="objects\\[0\\]"):
+        est.estimate_scene(depth, rgb, K, ["cube"])
+    assert est.settings.scene.min_inlier_fraction == pytest.approx(0.7)
+    assert "segment" in perch2.SceneSettings.__doc__.lower() or perch2.SceneSettings.__doc__

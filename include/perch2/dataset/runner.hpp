@@ -58,8 +58,10 @@ struct RunOptions {
   /// in ImageResult::missing, never thrown (strict_instances is turned off).
   SearchVariant variant = SearchVariant::Perch2C;
   TabletopSettings tabletop;
-  /// 6-DoF: where the instances come from: "gt" (the dataset's mask_visib) or a detection file (BOP/COCO
-  /// JSON with RLE masks, read once when the runner is built).
+  /// 6-DoF: where the instances come from: "gt" (the dataset's mask_visib), a detection file (BOP/COCO
+  /// JSON with RLE masks, read once when the runner is built), or "none": no masks, the targets' objects
+  /// and instance counts are searched for in the whole frame (SixDofEstimator::estimate_scene; instances
+  /// not found are counted in ImageResult::missing).
   std::string masks = "gt";
   BoxKind box = BoxKind::Full;  ///< 6-DoF with "gt" masks: scene_gt_info's amodal bbox_obj, or bbox_visib
   SixDofSettings sixdof;
@@ -84,11 +86,12 @@ struct ImageResult {
   std::vector<std::pair<std::string, double>> stages;
   double seconds = 0;  ///< the image's estimate time (the rows' "time" column)
   int requested = 0;   ///< instances the targets ask for
-  int missing = 0;     ///< 3-DoF: requested instances not found
+  int missing = 0;     ///< 3-DoF and 6-DoF with masks "none": requested instances not found
   int unusable = 0;    ///< 6-DoF: target instances skipped for too few depth readings in their mask
-  int instances = 0;   ///< 6-DoF: instances estimated
+  int instances = 0;   ///< 6-DoF: instances estimated (masks "none": placed)
   std::optional<TabletopResult> tabletop;  ///< the estimator's full result (3-DoF)
-  std::optional<SixDofResult> sixdof;      ///< the estimator's full result (6-DoF)
+  /// the estimator's full result (6-DoF; masks "none": the scene search's counts and timings, no poses)
+  std::optional<SixDofResult> sixdof;
 };
 
 /// An image that could not be estimated (an unreadable or truncated image file, a missing mask, a

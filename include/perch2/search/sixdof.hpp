@@ -52,6 +52,7 @@
 #include <limits>
 #include <map>
 #include <optional>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -66,6 +67,7 @@
 #include "perch2/render/render.hpp"
 #include "perch2/search/local_search.hpp"
 #include "perch2/search/proposals.hpp"
+#include "perch2/search/segmentation.hpp"
 
 namespace perch2 {
 
@@ -126,6 +128,36 @@ struct LocalSearchSettings {
     c.color_rule = ColorRule::Nearest;
     return c;
   }();
+};
+
+/// estimate_scene() (no detector): the frame's segments (perch2/search/segmentation.hpp), a search of every
+/// requested model on every segment of a compatible size, then the scene explained object by object.
+///   jobs     model m on segment k unless k's area is below min_area_fraction x m's smallest bounding-box
+///            face (it cannot show m) or above max_area_faces x m's largest face (a wall, a shelf side);
+///            around k's box, or, if k is wider than piece_extent_factor x m's size (two objects touching),
+///            around each of ceil(area / m's largest face) pieces of it (k-means on its readings, at most
+///            max_pieces): proposals, both passes and the local search as estimate(), GICP against the
+///            whole segment
+///   explain  every job's best pose is a candidate; each round scores all candidates against the readings
+///            still unexplained (placed objects' readings hide what is behind them and explain nothing
+///            more) and places the lowest-cost acceptable one: at least min_inlier_fraction of its rendered
+///            points explained (RGB-D test) and min_explained_points readings of its own; its readings
+///            within explain_distance_m of its full-resolution render become its own. Until every requested
+///            instance is placed or none is acceptable (the rest is missing).
+///   fit      each placed object's final cost and surface fit on its own readings, as estimate()'s.
+struct SceneSettings {
+  SegmentationSettings segmentation;
+  float min_area_fraction = 0.15f;   ///< see above (a mostly hidden object shows little)
+  float max_area_faces = 10.f;       ///< see above
+  float piece_extent_factor = 1.4f;  ///< see above
+  int max_pieces = 6;                ///< see above (>= 1)
+  int min_segment_points = 20;       ///< segments with fewer observed points (observed grid) get no job
+  float min_inlier_fraction = 0.7f;  ///< see above, in [0, 1]
+  int min_explained_points = 15;     ///< see above (observed grid)
+  float explain_distance_m = 0.01f;  ///< see above, metres
+  /// After an object is placed, the candidates whose segments lost readings to it are refined again (both
+  /// GICP passes) against the readings still unexplained: a touching neighbour's readings pulled them.
+  bool refine_after_placing = true;
 };
 
 struct SixDofSettings {
@@ -198,6 +230,7 @@ struct SixDofSettings {
   float trim_margin_m = 0.03f;   ///< metres; < 0 turns trimming off
   int min_rendered_points = 10;  ///< a hypothesis showing fewer points (at score_stride) is not selected
   LocalSearchSettings local;     ///< after the second pass: turns about the model's axes (see above)
+  SceneSettings scene;           ///< estimate_scene() only: segments, jobs and the scene explanation
   /// The last step (file comment, "fit"): the selected pose's robust fit onto the instance's observed
   /// points on the fit_stride grid (fit.iterations = 0: off). The rest of the search works on stride
   /// 2-8 grids and rendered clouds, whose sampling and silhouettes leave the pose a few millimetres off;
@@ -231,8 +264,11 @@ struct SixDofPose {
 
 struct SixDofTimings {  ///< seconds, wall clock
   double observed = 0, proposals = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0;
-  double local = 0;  ///< the local search (its renders and costs are also in render and cost)
-  double fit = 0;    ///< the final surface fit (its re-score's render and cost are in render and cost)
+  double local = 0;    ///< the local search (its renders and costs are also in render and cost)
+  double fit = 0;      ///< the final surface fit (its re-score's render and cost are in render and cost)
+  double segment = 0;  ///< estimate_scene: the frame's segmentation (plane, components)
+  double explain =
+      0;  ///< estimate_scene: placing objects one by one (its renders and costs also in render, cost)
 };
 
 struct SixDofResult {
@@ -251,6 +287,29 @@ struct SixDofResult {
   /// Largest chunk's estimated working memory (its rendered points x bytes_per_point), bytes.
   std::size_t peak_chunk_bytes = 0;
   SixDofTimings timings;
+};
+
+/// An object estimate_scene() looks for: a model and how many instances of it the frame holds.
+struct SixDofObject {
+  int model = 0;
+  int count = 1;
+};
+
+/// estimate_scene()'s answer.
+struct SixDofSceneResult {
+  /// Placed instances, in placement order; SixDofPose::instance = index into the objects given.
+  std::vector<SixDofPose> poses;
+  std::vector<int> missing;                 ///< per object given: requested instances not placed
+  std::vector<FrameSegment> segments;       ///< the frame's segments (largest first)
+  std::vector<std::size_t> segment_points;  ///< per segment: its readings on the observed grid
+  std::optional<TablePlane> plane;          ///< the support plane, if one was found
+  std::size_t jobs = 0;                     ///< (model, segment or piece) searches
+  std::size_t candidates = 0;               ///< jobs whose best pose showed min_rendered_points
+  std::size_t rounds = 0;                   ///< scoring rounds of the explanation
+  std::size_t refined = 0;  ///< candidates refined again after a neighbour took readings of their segment
+  /// The search's counts per job (hypotheses, rotations, depths), segment_points per job group, totals
+  /// and the timings of every stage (segment and explain included); its `poses` is empty.
+  SixDofResult search;
 };
 
 namespace sixdof_detail {
@@ -281,6 +340,57 @@ inline void transform_clouds(CloudBatch& b, const std::vector<Pose>& T) {
     }
 }
 
+/// Segment `seg`'s pixels split into `pieces` parts by k-means on their camera-frame points (k-means++
+/// seeding with a fixed seed, so results are deterministic); one mask (full resolution) per part.
+inline std::vector<Image<std::uint8_t>> segment_pieces(const RgbdFrame& frame, const LabelImage& labels,
+                                                       const FrameSegment& seg, int pieces) {
+  const int w = frame.camera.width;
+  std::vector<std::size_t> pix;
+  std::vector<Eigen::Vector3f> pts;
+  const Eigen::Vector4i& b = seg.box_xywh;
+  for (int v = b[1]; v <= b[1] + b[3]; ++v)
+    for (int u = b[0]; u <= b[0] + b[2]; ++u) {
+      const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
+      if (labels.data[i] != seg.label) continue;
+      pix.push_back(i);
+      pts.push_back(segmentation_detail::point_at(frame.camera, u, v, frame.depth_m.data[i]));
+    }
+  std::vector<Image<std::uint8_t>> out;
+  if (pieces <= 1 || pts.size() < std::size_t(pieces)) {
+    out.emplace_back(labels.width, labels.height, 0);
+    for (const std::size_t i : pix) out.back().data[i] = 1;
+    return out;
+  }
+  std::mt19937 rng(7);
+  std::vector<Eigen::Vector3f> centre{
+      pts[std::uniform_int_distribution<std::size_t>(0, pts.size() - 1)(rng)]};
+  std::vector<float> d2(pts.size(), INFINITY);
+  while (int(centre.size()) < pieces) {  // k-means++: the next centre with probability ~ squared distance
+    double total = 0;
+    for (std::size_t i = 0; i < pts.size(); ++i)
+      total += d2[i] = std::min(d2[i], (pts[i] - centre.back()).squaredNorm());
+    double r = std::uniform_real_distribution<double>(0, total)(rng);
+    std::size_t pick = 0;
+    while (pick + 1 < pts.size() && (r -= d2[pick]) > 0) ++pick;
+    centre.push_back(pts[pick]);
+  }
+  std::vector<int> owner(pts.size(), 0);
+  for (int it = 0; it < 10; ++it) {
+    std::vector<Eigen::Vector3f> sum(centre.size(), Eigen::Vector3f::Zero());
+    std::vector<int> n(centre.size(), 0);
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      float best = INFINITY;
+      for (std::size_t c = 0; c < centre.size(); ++c)
+        if (const float d = (pts[i] - centre[c]).squaredNorm(); d < best) best = d, owner[i] = int(c);
+      sum[std::size_t(owner[i])] += pts[i], ++n[std::size_t(owner[i])];
+    }
+    for (std::size_t c = 0; c < centre.size(); ++c)
+      if (n[c] > 0) centre[c] = sum[c] / float(n[c]);
+  }
+  out.assign(centre.size(), Image<std::uint8_t>(labels.width, labels.height, 0));
+  for (std::size_t i = 0; i < pix.size(); ++i) out[std::size_t(owner[i])].data[pix[i]] = 1;
+  return out;
+}
 }  // namespace sixdof_detail
 
 template <class Backend>
@@ -293,7 +403,13 @@ class SixDofEstimator {
         settings_(std::move(settings)),
         renderer_(meshes_of(models_)),
         surface_fit_(meshes_of(models_), settings_.fit_sample_spacing_m) {
-    for (const auto& m : models_) diameter_.push_back(sixdof_detail::model_diameter_bound(m.mesh));
+    for (const auto& m : models_) {
+      diameter_.push_back(sixdof_detail::model_diameter_bound(m.mesh));
+      Eigen::Vector3f e = m.mesh.bounds().sizes();
+      std::sort(e.data(), e.data() + 3);
+      size_m_.push_back(e.norm());
+      face_m2_.emplace_back(e[0] * e[1], e[1] * e[2]);
+    }
   }
 
   const SixDofSettings& settings() const { return settings_; }
@@ -335,135 +451,257 @@ class SixDofEstimator {
     const Occluders occluders{frame.depth_m, labels};
     result.timings.observed = seconds_since(t);
 
-    // ---- proposals
+    // ---- one job per instance: its model's proposals around its box, refined against its own segment
     t = Clock::now();
-    std::vector<Hypothesis> hyps;
-    std::vector<std::size_t> points_estimate;  // per instance: rendered points bound for the chunk size
+    std::vector<Job> jobs;
     for (std::size_t k = 0; k < K; ++k) {
       const SixDofInstance& in = instances[k];
-      const std::string who = "instances[" + std::to_string(k) + "] mask";
-      const auto rotations = rotation_proposals(s.proposals, models_[in.model].symmetries);
       Image<std::uint8_t> trimmed(labels.width, labels.height, 0);  // the mask after trimming
       for (std::size_t i = 0; i < labels.data.size(); ++i) trimmed.data[i] = labels.data[i] == int(k + 1);
-      const auto depths = proposal_depths(frame.depth_m, trimmed, models_[in.model].mesh, s.proposals, who);
-      Eigen::Vector4i box = in.box_xywh;
-      if (box[2] < 0 || box[3] < 0) box = mask_box(in.mask);
-      const auto poses = pose_proposals(frame.camera, box_centre_px(box), rotations, depths);
-      for (const auto& T : poses) hyps.push_back({in.model, T, std::int32_t(k + 1)});
-      result.rotations.push_back(rotations.size());
-      result.depths.push_back(depths.size());
-      result.hypotheses.push_back(poses.size());
-      // The object's image at the nearest depth covers at most its diameter's projection, squared.
-      const float px = frame.camera.fx * diameter_[in.model] / std::max(depths.front(), 1e-3f);
-      const int stride = std::min({s.render.stride, s.second_pass_stride, s.score_stride});
-      points_estimate.push_back(std::size_t(px * px / float(stride * stride)) + 1);
+      Job job;
+      job.model = in.model, job.segment = std::int32_t(k), job.label = std::int32_t(k + 1);
+      job.depths = proposal_depths(frame.depth_m, trimmed, models_[std::size_t(in.model)].mesh, s.proposals,
+                                   "instances[" + std::to_string(k) + "] mask");
+      job.box_xywh = in.box_xywh;
+      if (job.box_xywh[2] < 0 || job.box_xywh[3] < 0) job.box_xywh = mask_box(in.mask);
+      jobs.push_back(std::move(job));
     }
-    result.hypotheses_total = hyps.size();
     result.timings.proposals = seconds_since(t);
+    std::vector<std::int32_t> job_cloud(K), job_label(K);
+    for (std::size_t k = 0; k < K; ++k) job_cloud[k] = std::int32_t(k), job_label[k] = std::int32_t(k + 1);
+    const Context ctx{frame, occluders, &registration, cost, job_cloud, job_label, job_cloud};
+    std::vector<std::size_t> points_estimate;  // per job: rendered points bound for the chunk size
+    const std::vector<Finalist> finalists = search(ctx, jobs, result.segment_points, points_estimate, result);
 
-    // ---- first pass over every proposal (chunks): render, refine, re-render, cheap cost. Each instance at
-    // the coarsest stride that still shows it with first_pass_min_points (a mostly hidden object is
-    // refined on a finer grid); hypotheses are grouped by instance, so each stride is a contiguous run.
-    std::vector<int> first_stride(K);
-    for (std::size_t k = 0; k < K; ++k) first_stride[k] = first_pass_stride(result.segment_points[k]);
-    std::vector<CostBreakdown> first_costs;
-    std::vector<Hypothesis> refined;  // after the first pass (without the warm-up's duplicates), in order
-    for (std::size_t begin = 0; begin < hyps.size();) {
-      const int stride = first_stride[std::size_t(hyps[begin].label - 1)];
-      std::size_t end = begin;
-      while (end < hyps.size() && first_stride[std::size_t(hyps[end].label - 1)] == stride) ++end;
-      Pass first;
-      first.stride = first.score_stride = stride;
-      first.gicp = s.gicp;
-      first.cost = &s.first_pass_cost;
-      first.dedupe_after_warmup = s.dedupe_after_warmup;
-      first.first = true;
-      std::vector<Hypothesis> run(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
-      const auto c = run_chunks(frame, occluders, registration, cost, first, run, points_estimate, result);
-      refined.insert(refined.end(), run.begin(), run.end());
-      first_costs.insert(first_costs.end(), c.begin(), c.end());
-      begin = end;
-    }
-    hyps = std::move(refined);
-
-    // ---- second pass over the best distinct poses of each instance: tighter refinement, final cost
-    std::vector<Hypothesis> kept = keep_best(hyps, first_costs, first_stride, instances);
-    result.second_pass_hypotheses = kept.size();
-    Pass second;
-    second.stride = s.second_pass_stride;
-    second.gicp = s.gicp;
-    second.gicp.max_correspondence_distance_m = s.second_pass_cap_m;
-    second.gicp.max_iterations = s.second_pass_iterations;
-    second.gicp.icp_warmup_iterations = 0;
-    second.refine = s.second_pass_cap_m > 0;
-    second.score_stride = s.score_stride;
-    second.cost = &s.cost;
-    const std::vector<CostBreakdown> costs =
-        run_chunks(frame, occluders, registration, cost, second, kept, points_estimate, result);
-
-    // ---- select: the best acceptable hypotheses of each instance, refined by the local search
-    t = Clock::now();
-    const std::size_t n_local = s.local.candidates_per_instance > 0 ? s.local.candidates_per_instance : 1;
-    std::vector<std::size_t> top = best_per_instance(kept, costs, K, n_local, s.score_stride);
-    result.timings.select += seconds_since(t);
-    std::vector<Hypothesis> finalists;
-    for (const std::size_t h : top) finalists.push_back(kept[h]);
-    std::vector<CostBreakdown> final_costs;
-    for (const std::size_t h : top) final_costs.push_back(costs[h]);
-    if (s.local.candidates_per_instance > 0) {
-      t = Clock::now();
-      const std::vector<CostBreakdown> local_costs =
-          local_search(frame, occluders, cost, finalists, points_estimate, result);
-      if (s.local.polish && second.refine) {  // GICP restores what the turns may have tilted (it cannot undo
-                                              // a turn it cannot see)
-        const CloudBatch rendered = render(finalists, frame.camera, s.second_pass_stride, occluders, result);
-        refine(finalists, rendered, registration, second.gicp, result);
-      }
-      // The winner per instance (acceptable first) by the local cost or by the final cost (re-evaluated
-      // at the moved poses; the winner's gives the score either way).
-      std::vector<CostBreakdown> moved_costs =
-          score(frame, occluders, cost, finalists, s.score_stride, s.cost, points_estimate, result);
-      const std::vector<std::size_t> winners =
-          s.local.select_by_local_cost ? best_per_instance(finalists, local_costs, K, 1, s.local.stride)
-                                       : best_per_instance(finalists, moved_costs, K, 1, s.score_stride);
-      std::vector<Hypothesis> chosen;
-      final_costs.clear();
-      for (const std::size_t h : winners)
-        chosen.push_back(finalists[h]), final_costs.push_back(moved_costs[h]);
-      finalists = std::move(chosen);
-      result.timings.local += seconds_since(t);
-    }
     t = Clock::now();
     std::vector<SixDofPose> best(K);
-    for (std::size_t k = 0; k < K; ++k) best[k].instance = int(k), best[k].model = instances[k].model;
-    std::vector<bool> seen(K, false);
-    for (std::size_t h = 0; h < finalists.size(); ++h) {  // in order: an instance's best comes first
-      const auto k = std::size_t(finalists[h].label - 1);
-      if (seen[k]) continue;
-      seen[k] = true;
-      best[k].T_cam_obj = finalists[h].T_cam_obj;
-      best[k].found = final_costs[h].rendered_points >= s.min_rendered_points;
-      best[k].cost = final_costs[h];
+    for (std::size_t k = 0; k < K; ++k) {
+      best[k].instance = int(k), best[k].model = instances[k].model;
+      best[k].T_cam_obj = finalists[k].hypothesis.T_cam_obj;
+      best[k].found = finalists[k].cost.rendered_points >= s.min_rendered_points;
+      best[k].cost = finalists[k].cost;
     }
     result.timings.select += seconds_since(t);
     if (s.fit.iterations > 0) {
       t = Clock::now();
-      fit_poses(frame, labels, occluders, cost, points_estimate, best, result);
+      fit_poses(ctx, labels, points_estimate, best, result);
       result.timings.fit += seconds_since(t);
     }
-    for (auto& p : best) {
-      const CostBreakdown& b = p.cost;
-      const float n = float(b.rendered_points + b.observed_in_volume);
-      p.score = n > 0
-                    ? std::clamp(1.f - float(b.rendered_outliers() + b.observed_unexplained()) / n, 0.f, 1.f)
-                    : 0.f;
-    }
+    for (auto& p : best) p.score = pose_score(p.cost);
     result.poses = std::move(best);
     result.timings.total = seconds_since(t_start);
     return result;
   }
 
+  /// The poses of the requested objects in an unsegmented frame (no detector): `objects` says which
+  /// models and how many instances of each (BOP's targets give exactly that). See SceneSettings for the
+  /// stages. Every placed instance is a pose in SixDofSceneResult::poses; an instance that no acceptable
+  /// candidate explains is counted in `missing`, never placed on a distractor to fill the count. Throws
+  /// InvalidInput on a malformed frame, missing colour for the RGB-D cost, an unknown model, a negative
+  /// count and bad settings.
+  SixDofSceneResult estimate_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects) const {
+    using namespace sixdof_detail;
+    const auto t_start = Clock::now();
+    validate_scene(frame, objects);
+    const SixDofSettings& s = settings_;
+    const SceneSettings& ss = s.scene;
+    SixDofSceneResult out;
+    SixDofResult& result = out.search;
+    for (const auto& o : objects) out.missing.push_back(o.count);
+
+    // ---- segment: support plane, connected components, size rule
+    auto t = Clock::now();
+    float smallest_face = INFINITY;
+    for (const auto& o : objects)
+      if (o.count > 0) smallest_face = std::min(smallest_face, face_m2_[std::size_t(o.model)].first);
+    if (!std::isfinite(smallest_face)) return finish(out, t_start);  // nothing requested
+    FrameSegments segments = segment_frame(frame, ss.segmentation, smallest_face);
+    out.segments = segments.segments;
+    out.plane = segments.plane;
+    result.timings.segment = seconds_since(t);
+    const std::size_t S = segments.segments.size();
+    if (S == 0) return finish(out, t_start);
+
+    // ---- jobs: every requested model on every segment of a compatible size (pieces of a large one)
+    t = Clock::now();
+    std::vector<std::int32_t> segment_labels(S);
+    for (std::size_t k = 0; k < S; ++k) segment_labels[k] = std::int32_t(k + 1);
+    {
+      const CloudBatch grid = observed_segments(frame, segments.labels, segment_labels, s.observed);
+      for (std::size_t k = 0; k < S; ++k) out.segment_points.push_back(grid.cloud_size(k));
+    }
+    std::vector<Job> jobs;
+    for (const auto& o : objects) {
+      if (o.count <= 0) continue;
+      for (std::size_t k = 0; k < S; ++k)
+        if (out.segment_points[k] >= std::size_t(ss.min_segment_points))
+          add_scene_jobs(frame, segments, int(k), o.model, jobs);
+    }
+    out.jobs = jobs.size();
+    if (jobs.empty()) {
+      result.timings.proposals = seconds_since(t);
+      return finish(out, t_start);
+    }
+    // Each job's GICP targets and J_o's points: its segment and those that may be other parts of the same
+    // object (an occluder in front splits it), as one observed cloud per distinct group.
+    const std::vector<std::vector<std::int32_t>> groups = group_segments(segments, jobs);
+    result.timings.proposals = seconds_since(t);
+    t = Clock::now();
+    const CloudBatch observed = group_clouds(frame, segments.labels, groups, S);
+    for (std::size_t g = 0; g < groups.size(); ++g) result.segment_points.push_back(observed.cloud_size(g));
+    const CloudBatch targets = with_pieces(frame, observed, jobs);
+    const typename Backend::Registration registration(targets);
+    const typename Backend::Cost cost(observed);
+    const Occluders occluders{frame.depth_m, segments.labels};
+    result.timings.observed = seconds_since(t);
+    std::vector<std::int32_t> job_cloud, job_label, job_target;
+    for (const Job& j : jobs)
+      job_cloud.push_back(j.segment), job_label.push_back(j.label), job_target.push_back(j.target);
+    const Context ctx{frame, occluders, &registration, cost, job_cloud, job_label, job_target};
+    std::vector<std::size_t> points_estimate;
+    const std::vector<Finalist> found = search(ctx, jobs, result.segment_points, points_estimate, result);
+
+    // ---- explain the scene object by object
+    t = Clock::now();
+    std::vector<Hypothesis> candidates;
+    for (const Finalist& f : found)
+      if (f.cost.rendered_points >= s.min_rendered_points) candidates.push_back(f.hypothesis);
+    out.candidates = candidates.size();
+    std::vector<int> remaining = out.missing;
+    std::vector<int> object_of_model(models_.size(), -1);
+    for (std::size_t i = 0; i < objects.size(); ++i)
+      if (objects[i].count > 0) object_of_model[std::size_t(objects[i].model)] = int(i);
+    LabelImage labels = segments.labels;  // explained readings get their object's label, S + 1 + placed index
+    std::vector<Hypothesis> placed;
+    std::vector<int> placed_object;
+    std::vector<std::size_t> group_size(groups.size());  // unexplained readings per group, last round
+    for (std::size_t g = 0; g < groups.size(); ++g) group_size[g] = observed.cloud_size(g);
+    while (!candidates.empty() &&
+           std::any_of(remaining.begin(), remaining.end(), [](int r) { return r > 0; })) {
+      const Occluders occ_now{frame.depth_m, labels};
+      const CloudBatch unexplained = group_clouds(frame, labels, groups, S);
+      const typename Backend::Cost cost_now(unexplained);
+      const Context now{frame, occ_now, nullptr, cost_now, job_cloud, job_label, job_cloud};
+      if (ss.refine_after_placing && !placed.empty()) {  // the readings a neighbour took pulled these
+        std::vector<std::size_t> touched;
+        for (std::size_t i = 0; i < candidates.size(); ++i) {
+          const auto g = std::size_t(job_cloud[std::size_t(candidates[i].label - 1)]);
+          if (unexplained.cloud_size(g) != group_size[g] &&
+              unexplained.cloud_size(g) >= std::size_t(ss.min_segment_points))
+            touched.push_back(i);
+        }
+        if (!touched.empty()) {
+          const auto t_refine = Clock::now();
+          const typename Backend::Registration registration_now(unexplained);
+          const Context again{frame, occ_now, &registration_now, cost_now, job_cloud, job_label, job_cloud};
+          std::vector<Hypothesis> moved;
+          for (const std::size_t i : touched) moved.push_back(candidates[i]);
+          refine(again, moved, render(again, moved, s.render.stride, result), s.gicp, result);
+          const Pass second = second_pass();
+          if (second.refine)
+            refine(again, moved, render(again, moved, s.second_pass_stride, result), second.gicp, result);
+          for (std::size_t j = 0; j < touched.size(); ++j) candidates[touched[j]] = moved[j];
+          out.refined += touched.size();
+          result.timings.explain -= seconds_since(t_refine);  // counted in render and refine
+        }
+      }
+      for (std::size_t g = 0; g < groups.size(); ++g) group_size[g] = unexplained.cloud_size(g);
+      const std::vector<CostBreakdown> c =
+          score(now, candidates, s.score_stride, s.cost, points_estimate, result);
+      ++out.rounds;
+      std::size_t pick = candidates.size();
+      for (std::size_t i = 0; i < candidates.size(); ++i) {
+        const int obj = object_of_model[std::size_t(candidates[i].model)];
+        if (obj < 0 || remaining[std::size_t(obj)] <= 0 || !acceptable(c[i])) continue;
+        if (pick == candidates.size() || explained(c[i]) > explained(c[pick])) pick = i;
+      }
+      if (pick == candidates.size()) break;  // nothing acceptable is left: the rest is missing
+      const std::int32_t label = std::int32_t(S + 1 + placed.size());
+      explain(now, candidates[pick], label, S, labels, result);
+      const int obj = object_of_model[std::size_t(candidates[pick].model)];
+      --remaining[std::size_t(obj)];
+      placed.push_back(candidates[pick]), placed_object.push_back(obj);
+      candidates.erase(candidates.begin() + std::ptrdiff_t(pick));
+    }
+    result.timings.explain += seconds_since(t);
+
+    // ---- the placed objects on their own readings: final cost, surface fit, score
+    const std::size_t P = placed.size();
+    if (P > 0) {
+      t = Clock::now();
+      LabelImage own(labels.width, labels.height, 0);  // placed object j's readings: j + 1
+      for (std::size_t i = 0; i < own.data.size(); ++i)
+        if (labels.data[i] > std::int32_t(S)) own.data[i] = labels.data[i] - std::int32_t(S);
+      std::vector<std::int32_t> own_labels(P), own_segment(P);  // job j: cloud j, label j + 1
+      std::vector<std::size_t> own_estimate(P);
+      for (std::size_t j = 0; j < P; ++j) {
+        own_labels[j] = std::int32_t(j + 1), own_segment[j] = std::int32_t(j);
+        own_estimate[j] = points_estimate[std::size_t(placed[j].label - 1)];
+        placed[j].label = std::int32_t(j + 1);  // job j of the final context
+      }
+      const CloudBatch own_cloud = observed_segments(frame, own, own_labels, s.observed);
+      const typename Backend::Cost own_cost(own_cloud);
+      const Occluders own_occ{frame.depth_m, own};
+      const Context fin{frame, own_occ, nullptr, own_cost, own_segment, own_labels, own_segment};
+      const std::vector<CostBreakdown> c = score(fin, placed, s.score_stride, s.cost, own_estimate, result);
+      std::vector<SixDofPose> poses(P);
+      for (std::size_t j = 0; j < P; ++j) {
+        poses[j].instance = placed_object[j], poses[j].model = placed[j].model;
+        poses[j].T_cam_obj = placed[j].T_cam_obj, poses[j].cost = c[j], poses[j].found = true;
+      }
+      result.timings.select += seconds_since(t);
+      if (s.fit.iterations > 0) {
+        t = Clock::now();
+        fit_poses(fin, own, own_estimate, poses, result);
+        result.timings.fit += seconds_since(t);
+      }
+      for (auto& p : poses) p.score = pose_score(p.cost);
+      out.poses = std::move(poses);
+    }
+    out.missing = remaining;
+    return finish(out, t_start);
+  }
+
  private:
+  /// One search of the pipeline: a model's proposals (rotations x depths on the ray through the box centre)
+  /// refined against one observed segment. estimate(): one per instance; estimate_scene(): one per
+  /// (model, segment or piece of one).
+  struct Job {
+    int model = 0;
+    std::int32_t segment = 0;  ///< observed cloud of the cost (J_o's points; in estimate() GICP's too)
+    std::int32_t target = 0;   ///< observed cloud of GICP's targets
+    std::int32_t label = 0;    ///< the label of its own pixels in the occluders (they never hide it)
+    std::vector<std::int32_t> piece_pixels;  ///< estimate_scene, a piece of a segment: its pixels (targets)
+    Eigen::Vector4i box_xywh{0, 0, 0, 0};
+    std::vector<float> depths;  ///< proposal depths, metres
+  };
+
+  /// A job's selected hypothesis (label = job + 1) and its final cost.
+  struct Finalist {
+    Hypothesis hypothesis;
+    CostBreakdown cost;
+  };
+
+  /// What the passes over one frame share: the frame, its occluders, the observed segments (GICP targets,
+  /// J_o's points) and the segment each job's hypotheses explain (Hypothesis::label = job + 1).
+  struct Context {
+    const RgbdFrame& frame;
+    const Occluders& occ;
+    const typename Backend::Registration* registration;  ///< null where nothing is refined
+    const typename Backend::Cost& cost;
+    const std::vector<std::int32_t>& job_cloud;   ///< per job: its cost's observed cloud (J_o)
+    const std::vector<std::int32_t>& job_label;   ///< per job: the label of its own pixels (never hide it)
+    const std::vector<std::int32_t>& job_target;  ///< per job: its registration cloud (GICP targets)
+    std::int32_t segment_of(const Hypothesis& h) const { return job_cloud[std::size_t(h.label - 1)]; }
+    std::int32_t target_of(const Hypothesis& h) const { return job_target[std::size_t(h.label - 1)]; }
+    std::int32_t label_of(const Hypothesis& h) const { return job_label[std::size_t(h.label - 1)]; }
+    CostRequest request(const std::vector<Hypothesis>& hyps) const {
+      CostRequest r;
+      for (const auto& h : hyps) r.add(segment_of(h));
+      return r;
+    }
+  };
+
   static std::vector<Mesh> meshes_of(const std::vector<SixDofModel>& models) {
     if (models.empty()) throw InvalidInput("6-DoF models", "no models given");
     std::vector<Mesh> out;
@@ -472,6 +710,20 @@ class SixDofEstimator {
   }
 
   void validate(const RgbdFrame& frame, const std::vector<SixDofInstance>& instances) const {
+    validate_settings(frame);
+    if (instances.empty()) throw InvalidInput("instances", "no instances given");
+    for (std::size_t k = 0; k < instances.size(); ++k) {
+      const std::string who = "instances[" + std::to_string(k) + "]";
+      const SixDofInstance& in = instances[k];
+      if (in.model < 0 || std::size_t(in.model) >= models_.size())
+        throw InvalidInput(who, "unknown model id " + std::to_string(in.model) + " (" +
+                                    std::to_string(models_.size()) + " models)");
+      check_size(in.mask, frame.camera.width, frame.camera.height, who + " mask");
+    }
+  }
+
+  /// The settings and the frame (what both entry points need).
+  void validate_settings(const RgbdFrame& frame) const {
     const SixDofSettings& s = settings_;
     perch2::validate(s.proposals);
     perch2::validate(s.gicp);
@@ -505,15 +757,6 @@ class SixDofEstimator {
       throw InvalidInput("6-DoF frame",
                          "has no colour image, which the RGB-D cost needs (set cost.use_color and "
                          "first_pass_cost.use_color = false for the depth-only cost)");
-    if (instances.empty()) throw InvalidInput("instances", "no instances given");
-    for (std::size_t k = 0; k < instances.size(); ++k) {
-      const std::string who = "instances[" + std::to_string(k) + "]";
-      const SixDofInstance& in = instances[k];
-      if (in.model < 0 || std::size_t(in.model) >= models_.size())
-        throw InvalidInput(who, "unknown model id " + std::to_string(in.model) + " (" +
-                                    std::to_string(models_.size()) + " models)");
-      check_size(in.mask, frame.camera.width, frame.camera.height, who + " mask");
-    }
   }
 
   /// Depth-consistency trimming of instance `label`'s pixels (see the file comment); returns the pixels
@@ -546,10 +789,11 @@ class SixDofEstimator {
 
   /// The final fit (SixDofSettings::fit) of every found pose onto its instance's observed points on the
   /// fit_stride grid (the pixels labelled with it after trimming), then the cost at the fitted pose.
-  void fit_poses(const RgbdFrame& frame, const LabelImage& labels, const Occluders& occ,
-                 const typename Backend::Cost& cost, const std::vector<std::size_t>& points_estimate,
-                 std::vector<SixDofPose>& best, SixDofResult& result) const {
+  void fit_poses(const Context& ctx, const LabelImage& labels,
+                 const std::vector<std::size_t>& points_estimate, std::vector<SixDofPose>& best,
+                 SixDofResult& result) const {
     const SixDofSettings& s = settings_;
+    const RgbdFrame& frame = ctx.frame;
     CloudBatch support;
     std::vector<int> model;
     std::vector<Pose> start;
@@ -569,8 +813,7 @@ class SixDofEstimator {
     std::vector<Hypothesis> fitted;
     for (std::size_t i = 0; i < which.size(); ++i)
       fitted.push_back({model[i], r.T_cam_obj[i], std::int32_t(which[i] + 1)});
-    const std::vector<CostBreakdown> c =
-        score(frame, occ, cost, fitted, s.score_stride, s.cost, points_estimate, result);
+    const std::vector<CostBreakdown> c = score(ctx, fitted, s.score_stride, s.cost, points_estimate, result);
     for (std::size_t i = 0; i < which.size(); ++i) {
       SixDofPose& p = best[which[i]];
       const float slack = s.fit_cost_slack * float(p.cost.rendered_points + p.cost.observed_in_volume);
@@ -580,26 +823,29 @@ class SixDofEstimator {
     }
   }
 
-  CloudBatch render(const std::vector<Hypothesis>& h, const Intrinsics& camera, int stride,
-                    const Occluders& occ, SixDofResult& result) const {
+  /// Renders the hypotheses (of jobs) as their segments' own: pixels of a hypothesis' segment never hide it.
+  CloudBatch render(const Context& ctx, const std::vector<Hypothesis>& h, int stride,
+                    SixDofResult& result) const {
     const auto t = sixdof_detail::Clock::now();
     RenderSettings rs = settings_.render;
     rs.stride = stride;
-    CloudBatch out = renderer_.render(h, camera, rs, &occ);
+    std::vector<Hypothesis> as_segments = h;
+    for (auto& x : as_segments) x.label = ctx.label_of(x);
+    CloudBatch out = renderer_.render(as_segments, ctx.frame.camera, rs, &ctx.occ);
     result.timings.render += sixdof_detail::seconds_since(t);
     return out;
   }
 
   /// One GICP pass of every hypothesis against its own segment (only gs's ICP warm-up if warmup_only);
   /// moves the hypotheses.
-  void refine(std::vector<Hypothesis>& chunk, const CloudBatch& rendered,
-              const typename Backend::Registration& registration, const GicpSettings& gs,
-              SixDofResult& result, bool warmup_only = false) const {
+  void refine(const Context& ctx, std::vector<Hypothesis>& chunk, const CloudBatch& rendered,
+              const GicpSettings& gs, SixDofResult& result, bool warmup_only = false) const {
     const auto t = sixdof_detail::Clock::now();
     std::vector<std::int32_t> segment(chunk.size());
-    for (std::size_t h = 0; h < chunk.size(); ++h) segment[h] = chunk[h].label - 1;
-    const RegistrationResult r = warmup_only ? registration.icp(rendered, segment, icp_warmup_settings(gs))
-                                             : registration.gicp(rendered, segment, gs);
+    for (std::size_t h = 0; h < chunk.size(); ++h) segment[h] = ctx.target_of(chunk[h]);
+    const RegistrationResult r = warmup_only
+                                     ? ctx.registration->icp(rendered, segment, icp_warmup_settings(gs))
+                                     : ctx.registration->gicp(rendered, segment, gs);
     for (std::size_t h = 0; h < chunk.size(); ++h) {
       Pose T = r.T_corr[h] * chunk[h].T_cam_obj;
       T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();  // keep it rigid
@@ -672,10 +918,7 @@ class SixDofEstimator {
 
   /// Runs `pass` over `hyps` in chunks under the memory budget; moves the hypotheses to their refined
   /// poses and returns their costs, in order.
-  std::vector<CostBreakdown> run_chunks(const RgbdFrame& frame, const Occluders& occ,
-                                        const typename Backend::Registration& registration,
-                                        const typename Backend::Cost& cost, const Pass& pass,
-                                        std::vector<Hypothesis>& hyps,
+  std::vector<CostBreakdown> run_chunks(const Context& ctx, const Pass& pass, std::vector<Hypothesis>& hyps,
                                         const std::vector<std::size_t>& points_estimate,
                                         SixDofResult& result) const {
     const SixDofSettings& s = settings_;
@@ -691,7 +934,7 @@ class SixDofEstimator {
     while (begin < hyps.size()) {
       const std::size_t end = chunk_end(hyps, begin, scale, points_estimate);
       std::vector<Hypothesis> chunk(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
-      const std::size_t points = run_chunk(frame, occ, registration, cost, pass, chunk, costs, result);
+      const std::size_t points = run_chunk(ctx, pass, chunk, costs, result);
       out.insert(out.end(), chunk.begin(), chunk.end());
       result.peak_chunk_bytes = std::max(result.peak_chunk_bytes, points * s.bytes_per_point);
       result.chunk_hypotheses = std::max(result.chunk_hypotheses, end - begin);
@@ -720,10 +963,8 @@ class SixDofEstimator {
 
   /// Renders `hyps` at `stride` and scores them with `cs`, in chunks under the memory budget (counted in
   /// peak_chunk_bytes, not in chunks).
-  std::vector<CostBreakdown> score(const RgbdFrame& frame, const Occluders& occ,
-                                   const typename Backend::Cost& cost, const std::vector<Hypothesis>& hyps,
-                                   int stride, const CostSettings& cs,
-                                   const std::vector<std::size_t>& points_estimate,
+  std::vector<CostBreakdown> score(const Context& ctx, const std::vector<Hypothesis>& hyps, int stride,
+                                   const CostSettings& cs, const std::vector<std::size_t>& points_estimate,
                                    SixDofResult& result) const {
     const int finest =
         std::min({settings_.render.stride, settings_.second_pass_stride, settings_.score_stride});
@@ -734,13 +975,11 @@ class SixDofEstimator {
       const std::size_t end = chunk_end(hyps, begin, scale, points_estimate);
       const std::vector<Hypothesis> chunk(hyps.begin() + std::ptrdiff_t(begin),
                                           hyps.begin() + std::ptrdiff_t(end));
-      const CloudBatch rendered = render(chunk, frame.camera, stride, occ, result);
+      const CloudBatch rendered = render(ctx, chunk, stride, result);
       result.peak_chunk_bytes =
           std::max(result.peak_chunk_bytes, rendered.size() * settings_.bytes_per_point);
       const auto t = sixdof_detail::Clock::now();
-      CostRequest request;
-      for (const auto& h : chunk) request.add(h.label - 1);
-      const std::vector<CostBreakdown> c = cost.evaluate(rendered, request, cs).hypotheses;
+      const std::vector<CostBreakdown> c = ctx.cost.evaluate(rendered, ctx.request(chunk), cs).hypotheses;
       costs.insert(costs.end(), c.begin(), c.end());
       result.timings.cost += sixdof_detail::seconds_since(t);
       begin = end;
@@ -772,8 +1011,7 @@ class SixDofEstimator {
 
   /// The local search (LocalSearchSettings) around each of `hyps`, which it moves; returns their costs
   /// (LocalSearchSettings::cost at its stride) at the poses found.
-  std::vector<CostBreakdown> local_search(const RgbdFrame& frame, const Occluders& occ,
-                                          const typename Backend::Cost& cost, std::vector<Hypothesis>& hyps,
+  std::vector<CostBreakdown> local_search(const Context& ctx, std::vector<Hypothesis>& hyps,
                                           const std::vector<std::size_t>& points_estimate,
                                           SixDofResult& result) const {
     const LocalSearchSettings& ls = settings_.local;
@@ -787,43 +1025,40 @@ class SixDofEstimator {
       return h;
     };
     auto costs = [&](const std::vector<Hypothesis>& h) {
-      return score(frame, occ, cost, h, ls.stride, ls.cost, points_estimate, result);
+      return score(ctx, h, ls.stride, ls.cost, points_estimate, result);
     };
     return climb_turns(hyps, 3, 3, schedule, turn, costs, &result.local_candidates);
   }
 
   /// Renders, refines, re-renders and scores one chunk (appending its costs). Returns its largest rendered
   /// point count.
-  std::size_t run_chunk(const RgbdFrame& frame, const Occluders& occ,
-                        const typename Backend::Registration& registration,
-                        const typename Backend::Cost& cost, const Pass& pass, std::vector<Hypothesis>& chunk,
+  std::size_t run_chunk(const Context& ctx, const Pass& pass, std::vector<Hypothesis>& chunk,
                         std::vector<CostBreakdown>& costs, SixDofResult& result) const {
     using namespace sixdof_detail;
     std::size_t points = 0;
     if (pass.refine && pass.dedupe_after_warmup && pass.gicp.icp_warmup_iterations > 0) {
       // ICP warm-up, then GICP only for the distinct poses it reached (re-rendered there).
-      const CloudBatch rendered = render(chunk, frame.camera, pass.stride, occ, result);
+      const CloudBatch rendered = render(ctx, chunk, pass.stride, result);
       points = rendered.size();
-      refine(chunk, rendered, registration, pass.gicp, result, /*warmup_only=*/true);
+      refine(ctx, chunk, rendered, pass.gicp, result, /*warmup_only=*/true);
       chunk = distinct_poses(chunk);
       result.first_pass_distinct += chunk.size();
       GicpSettings rest = pass.gicp;
       rest.icp_warmup_iterations = 0;
-      const CloudBatch moved = render(chunk, frame.camera, pass.stride, occ, result);
+      const CloudBatch moved = render(ctx, chunk, pass.stride, result);
       points = std::max(points, moved.size());
-      refine(chunk, moved, registration, rest, result);
+      refine(ctx, chunk, moved, rest, result);
     } else if (pass.refine) {
       if (pass.first) result.first_pass_distinct += chunk.size();
-      const CloudBatch rendered = render(chunk, frame.camera, pass.stride, occ, result);
+      const CloudBatch rendered = render(ctx, chunk, pass.stride, result);
       points = rendered.size();
-      refine(chunk, rendered, registration, pass.gicp, result);
+      refine(ctx, chunk, rendered, pass.gicp, result);
     }
-    const CloudBatch rendered = render(chunk, frame.camera, pass.score_stride, occ, result);
+    const CloudBatch rendered = render(ctx, chunk, pass.score_stride, result);
     points = std::max(points, rendered.size());
     const auto t = Clock::now();
-    CostRequest request;
-    for (const auto& h : chunk) request.add(h.label - 1);
-    const std::vector<CostBreakdown> c = cost.evaluate(rendered, request, *pass.cost).hypotheses;
+    const std::vector<CostBreakdown> c =
+        ctx.cost.evaluate(rendered, ctx.request(chunk), *pass.cost).hypotheses;
     costs.insert(costs.end(), c.begin(), c.end());
     result.timings.cost += seconds_since(t);
     return points;
@@ -834,9 +1069,8 @@ class SixDofEstimator {
   /// ranks after every one that shows enough.
   std::vector<Hypothesis> keep_best(const std::vector<Hypothesis>& hyps,
                                     const std::vector<CostBreakdown>& costs, const std::vector<int>& stride,
-                                    const std::vector<SixDofInstance>& instances) const {
+                                    std::size_t K) const {
     const SixDofSettings& s = settings_;
-    const std::size_t K = instances.size();
     std::vector<int> min_points(K);
     for (std::size_t k = 0; k < K; ++k) {
       const float ratio = float(s.score_stride) / float(stride[k]);
@@ -869,11 +1103,314 @@ class SixDofEstimator {
     return kept;
   }
 
+  /// Proposals, both passes, the local search and the selection of every job: one finalist per job, in job
+  /// order. Fills the per-job counts of `result` and points_estimate (per job: a rendered-point bound for
+  /// the chunk sizes).
+  std::vector<Finalist> search(const Context& ctx, const std::vector<Job>& jobs,
+                               const std::vector<std::size_t>& segment_points,
+                               std::vector<std::size_t>& points_estimate, SixDofResult& result) const {
+    using namespace sixdof_detail;
+    const SixDofSettings& s = settings_;
+    const std::size_t K = jobs.size();
+
+    // ---- proposals
+    auto t = Clock::now();
+    std::vector<Hypothesis> hyps;
+    points_estimate.clear();
+    std::map<int, std::vector<Eigen::Matrix3f>> rotations_of;  // per model
+    for (std::size_t k = 0; k < K; ++k) {
+      const Job& job = jobs[k];
+      auto it = rotations_of.find(job.model);
+      if (it == rotations_of.end())
+        it = rotations_of
+                 .emplace(job.model,
+                          rotation_proposals(s.proposals, models_[std::size_t(job.model)].symmetries))
+                 .first;
+      const auto poses =
+          pose_proposals(ctx.frame.camera, box_centre_px(job.box_xywh), it->second, job.depths);
+      for (const auto& T : poses) hyps.push_back({job.model, T, std::int32_t(k + 1)});
+      result.rotations.push_back(it->second.size());
+      result.depths.push_back(job.depths.size());
+      result.hypotheses.push_back(poses.size());
+      // The object's image at the nearest depth covers at most its diameter's projection, squared.
+      const float px =
+          ctx.frame.camera.fx * diameter_[std::size_t(job.model)] / std::max(job.depths.front(), 1e-3f);
+      const int stride = std::min({s.render.stride, s.second_pass_stride, s.score_stride});
+      points_estimate.push_back(std::size_t(px * px / float(stride * stride)) + 1);
+    }
+    result.hypotheses_total = hyps.size();
+    result.timings.proposals += seconds_since(t);
+
+    // ---- first pass over every proposal (chunks): render, refine, re-render, cheap cost. Each job at the
+    // coarsest stride that still shows it with first_pass_min_points (a mostly hidden object is refined on
+    // a finer grid); hypotheses are grouped by job, so each stride is a contiguous run.
+    std::vector<int> first_stride(K);
+    for (std::size_t k = 0; k < K; ++k)
+      first_stride[k] = first_pass_stride(segment_points[std::size_t(jobs[k].segment)]);
+    std::vector<CostBreakdown> first_costs;
+    std::vector<Hypothesis> refined;  // after the first pass (without the warm-up's duplicates), in order
+    for (std::size_t begin = 0; begin < hyps.size();) {
+      const int stride = first_stride[std::size_t(hyps[begin].label - 1)];
+      std::size_t end = begin;
+      while (end < hyps.size() && first_stride[std::size_t(hyps[end].label - 1)] == stride) ++end;
+      Pass first;
+      first.stride = first.score_stride = stride;
+      first.gicp = s.gicp;
+      first.cost = &s.first_pass_cost;
+      first.dedupe_after_warmup = s.dedupe_after_warmup;
+      first.first = true;
+      std::vector<Hypothesis> run(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
+      const auto c = run_chunks(ctx, first, run, points_estimate, result);
+      refined.insert(refined.end(), run.begin(), run.end());
+      first_costs.insert(first_costs.end(), c.begin(), c.end());
+      begin = end;
+    }
+    hyps = std::move(refined);
+
+    // ---- second pass over the best distinct poses of each job: tighter refinement, final cost
+    std::vector<Hypothesis> kept = keep_best(hyps, first_costs, first_stride, K);
+    result.second_pass_hypotheses += kept.size();
+    const Pass second = second_pass();
+    const std::vector<CostBreakdown> costs = run_chunks(ctx, second, kept, points_estimate, result);
+
+    // ---- select: the best acceptable hypotheses of each job, refined by the local search
+    t = Clock::now();
+    const std::size_t n_local = s.local.candidates_per_instance > 0 ? s.local.candidates_per_instance : 1;
+    std::vector<std::size_t> top = best_per_instance(kept, costs, K, n_local, s.score_stride);
+    result.timings.select += seconds_since(t);
+    std::vector<Hypothesis> finalists;
+    for (const std::size_t h : top) finalists.push_back(kept[h]);
+    std::vector<CostBreakdown> final_costs;
+    for (const std::size_t h : top) final_costs.push_back(costs[h]);
+    if (s.local.candidates_per_instance > 0) {
+      t = Clock::now();
+      const std::vector<CostBreakdown> local_costs = local_search(ctx, finalists, points_estimate, result);
+      if (s.local.polish && second.refine) {  // GICP restores what the turns may have tilted (it cannot undo
+                                              // a turn it cannot see)
+        const CloudBatch rendered = render(ctx, finalists, s.second_pass_stride, result);
+        refine(ctx, finalists, rendered, second.gicp, result);
+      }
+      // The winner per job (acceptable first) by the local cost or by the final cost (re-evaluated at the
+      // moved poses; the winner's gives the score either way).
+      std::vector<CostBreakdown> moved_costs =
+          score(ctx, finalists, s.score_stride, s.cost, points_estimate, result);
+      const std::vector<std::size_t> winners =
+          s.local.select_by_local_cost ? best_per_instance(finalists, local_costs, K, 1, s.local.stride)
+                                       : best_per_instance(finalists, moved_costs, K, 1, s.score_stride);
+      std::vector<Hypothesis> chosen;
+      final_costs.clear();
+      for (const std::size_t h : winners)
+        chosen.push_back(finalists[h]), final_costs.push_back(moved_costs[h]);
+      finalists = std::move(chosen);
+      result.timings.local += seconds_since(t);
+    }
+    t = Clock::now();
+    std::vector<Finalist> out(K);
+    for (std::size_t k = 0; k < K; ++k) {
+      out[k].hypothesis = {jobs[k].model, Pose::Identity(), std::int32_t(k + 1)};
+      out[k].cost.rendered_points = -1;  // no finalist (cannot happen: every job has proposals)
+    }
+    std::vector<bool> seen(K, false);
+    for (std::size_t h = 0; h < finalists.size(); ++h) {  // in order: a job's best comes first
+      const auto k = std::size_t(finalists[h].label - 1);
+      if (seen[k]) continue;
+      seen[k] = true;
+      out[k] = {finalists[h], final_costs[h]};
+    }
+    result.timings.select += seconds_since(t);
+    return out;
+  }
+
+  /// The second pass' settings (SixDofSettings::second_pass_*).
+  Pass second_pass() const {
+    const SixDofSettings& s = settings_;
+    Pass second;
+    second.stride = s.second_pass_stride;
+    second.gicp = s.gicp;
+    second.gicp.max_correspondence_distance_m = s.second_pass_cap_m;
+    second.gicp.max_iterations = s.second_pass_iterations;
+    second.gicp.icp_warmup_iterations = 0;
+    second.refine = s.second_pass_cap_m > 0;
+    second.score_stride = s.score_stride;
+    second.cost = &s.cost;
+    return second;
+  }
+
+  /// 1 - (rendered outliers + unexplained observed points) / (rendered + observed points), in [0, 1].
+  static float pose_score(const CostBreakdown& b) {
+    const float n = float(b.rendered_points + b.observed_in_volume);
+    return n > 0 ? std::clamp(1.f - float(b.rendered_outliers() + b.observed_unexplained()) / n, 0.f, 1.f)
+                 : 0.f;
+  }
+
+  /// Whether a scene candidate, scored against what is still unexplained, may be placed (SceneSettings).
+  bool acceptable(const CostBreakdown& c) const {
+    const SceneSettings& ss = settings_.scene;
+    if (c.rendered_points < settings_.min_rendered_points) return false;
+    const float inliers = float(c.rendered_points - c.rendered_outliers());
+    return inliers >= ss.min_inlier_fraction * float(c.rendered_points) &&
+           explained(c) >= ss.min_explained_points;
+  }
+
+  /// The observed readings a hypothesis explains (in its volume, not unexplained).
+  static std::int32_t explained(const CostBreakdown& c) {
+    return c.observed_in_volume - c.observed_unexplained();
+  }
+
+  /// Labels the readings that `placed` explains (unexplained object readings, labels 1..S, within
+  /// explain_distance_m of its render at full resolution, the same pixel) with `label`.
+  void explain(const Context& now, const Hypothesis& placed, std::int32_t label, std::size_t S,
+               LabelImage& labels, SixDofResult& result) const {
+    const CloudBatch r = render(now, {placed}, 1, result);
+    const float tol = settings_.scene.explain_distance_m;
+    for (std::size_t i = 0; i < r.size(); ++i) {
+      const std::int32_t p = r.pixel[i];
+      if (p < 0) continue;
+      const std::int32_t l = labels.data[std::size_t(p)];
+      const float d = now.frame.depth_m.data[std::size_t(p)];
+      if (l >= 1 && l <= std::int32_t(S) && d > 0 && std::abs(d - r.z[i]) <= tol)
+        labels.data[std::size_t(p)] = label;
+    }
+  }
+
+  /// The scene jobs of `model` on segment k (SceneSettings): none if the segment is too small or too
+  /// large to hold it, one around the segment's box, or one per model-sized piece of a larger segment
+  /// (k-means on its readings).
+  void add_scene_jobs(const RgbdFrame& frame, const FrameSegments& segments, int k, int model,
+                      std::vector<Job>& jobs) const {
+    const SceneSettings& ss = settings_.scene;
+    const FrameSegment& seg = segments.segments[std::size_t(k)];
+    const auto [small_face, large_face] = face_m2_[std::size_t(model)];
+    if (seg.area_m2 < ss.min_area_fraction * small_face) return;
+    if (seg.area_m2 > ss.max_area_faces * large_face) return;  // background for this model
+    const Mesh& mesh = models_[std::size_t(model)].mesh;
+    const std::string who = "segment " + std::to_string(k + 1);
+    const int pieces =
+        seg.extent_m > ss.piece_extent_factor * size_m_[std::size_t(model)]
+            ? std::clamp(int(std::ceil(seg.area_m2 / large_face)), 2, std::max(ss.max_pieces, 2))
+            : 1;
+    const std::vector<Image<std::uint8_t>> masks =
+        sixdof_detail::segment_pieces(frame, segments.labels, seg, pieces);
+    for (const auto& mask : masks) {
+      const std::array<int, 4> b = mask_bbox(mask);
+      if (b[2] < 0) continue;
+      Job job;
+      job.model = model, job.label = std::int32_t(k + 1);  // segment: group_segments()
+      job.box_xywh = {b[0], b[1], b[2], b[3]};
+      job.depths = proposal_depths(frame.depth_m, mask, mesh, settings_.proposals, who);
+      if (masks.size() > 1)  // a piece: GICP against its own readings, not its neighbour's in the segment
+        for (std::size_t i = 0; i < mask.data.size(); ++i)
+          if (mask.data[i]) job.piece_pixels.push_back(std::int32_t(i));
+      jobs.push_back(std::move(job));
+    }
+  }
+
+  /// Per job, the segments its object may span: its own and every segment whose centroid lies within the
+  /// model's size of it and that is no larger than the model (an occluder in front splits an object into
+  /// such parts). Sets each job's `segment` to its group's index; returns the distinct groups (sorted
+  /// labels).
+  std::vector<std::vector<std::int32_t>> group_segments(const FrameSegments& segments,
+                                                        std::vector<Job>& jobs) const {
+    std::map<std::vector<std::int32_t>, std::int32_t> index;
+    std::vector<std::vector<std::int32_t>> groups;
+    for (Job& job : jobs) {
+      const float size = size_m_[std::size_t(job.model)];
+      const FrameSegment& own = segments.segments[std::size_t(job.label - 1)];
+      std::vector<std::int32_t> members;
+      for (const FrameSegment& other : segments.segments)
+        if (other.label == own.label ||
+            (other.extent_m <= size && (other.centroid_cam - own.centroid_cam).norm() <= size))
+          members.push_back(other.label);
+      auto it = index.find(members);
+      if (it == index.end()) {
+        it = index.emplace(members, std::int32_t(groups.size())).first;
+        groups.push_back(members);
+      }
+      job.segment = it->second;
+    }
+    return groups;
+  }
+
+  /// GICP's targets: the groups' clouds, then one cloud per piece job of its piece's readings on the
+  /// observed grid (Job::target set; a piece without readings there keeps its group's).
+  CloudBatch with_pieces(const RgbdFrame& frame, const CloudBatch& groups, std::vector<Job>& jobs) const {
+    const ObservedCloudSettings& o = settings_.observed;
+    CloudBatch out = groups;
+    for (Job& job : jobs) {
+      job.target = job.segment;
+      if (job.piece_pixels.empty()) continue;
+      const std::size_t before = out.size();
+      const std::int32_t cloud = std::int32_t(out.num_clouds());
+      for (const std::int32_t p : job.piece_pixels) {
+        const int u = p % frame.camera.width, v = p / frame.camera.width;
+        if (u % o.stride || v % o.stride) continue;
+        if (const float d = frame.depth_m(u, v); observed_detail::keep(d, o))
+          observed_detail::append_pixel(frame, u, v, d, cloud, out);
+      }
+      if (out.size() == before) continue;
+      out.offsets.push_back(std::int64_t(out.size()));
+      job.target = cloud;
+    }
+    return out;
+  }
+
+  /// One observed cloud per group of segment labels (1..S): the readings on the observed grid whose
+  /// label is in the group (readings relabelled above S, explained ones, belong to none).
+  CloudBatch group_clouds(const RgbdFrame& frame, const LabelImage& labels,
+                          const std::vector<std::vector<std::int32_t>>& groups, std::size_t S) const {
+    const ObservedCloudSettings& o = settings_.observed;
+    CloudBatch out;
+    std::vector<std::uint8_t> member(S + 1);
+    for (std::size_t g = 0; g < groups.size(); ++g) {
+      std::fill(member.begin(), member.end(), 0);
+      for (const std::int32_t l : groups[g]) member[std::size_t(l)] = 1;
+      for (int v = 0; v < frame.camera.height; v += o.stride)
+        for (int u = 0; u < frame.camera.width; u += o.stride) {
+          const std::int32_t l = labels(u, v);
+          if (l < 1 || std::size_t(l) > S || !member[std::size_t(l)]) continue;
+          if (const float d = frame.depth_m(u, v); observed_detail::keep(d, o))
+            observed_detail::append_pixel(frame, u, v, d, std::int32_t(g), out);
+        }
+      out.offsets.push_back(std::int64_t(out.size()));
+    }
+    return out;
+  }
+
+  SixDofSceneResult& finish(SixDofSceneResult& out, sixdof_detail::Clock::time_point t_start) const {
+    out.search.timings.total = sixdof_detail::seconds_since(t_start);
+    return out;
+  }
+
+  void validate_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects) const {
+    validate_settings(frame);
+    const SceneSettings& ss = settings_.scene;
+    if (!(ss.min_area_fraction >= 0) || !(ss.max_area_faces > 0) || !(ss.piece_extent_factor > 0) ||
+        ss.max_pieces < 1 || !(ss.min_inlier_fraction >= 0 && ss.min_inlier_fraction <= 1) ||
+        !(ss.explain_distance_m > 0) || ss.min_segment_points < 1)
+      throw InvalidInput("SixDofSettings::scene",
+                         "needs min_area_fraction >= 0, max_area_faces > 0, piece_extent_factor > 0, "
+                         "max_pieces >= 1, min_inlier_fraction in [0, 1], explain_distance_m > 0 and "
+                         "min_segment_points >= 1");
+    for (std::size_t i = 0; i < objects.size(); ++i) {
+      const std::string who = "objects[" + std::to_string(i) + "]";
+      if (objects[i].model < 0 || std::size_t(objects[i].model) >= models_.size())
+        throw InvalidInput(who, "unknown model id " + std::to_string(objects[i].model) + " (" +
+                                    std::to_string(models_.size()) + " models)");
+      if (objects[i].count < 0) throw InvalidInput(who, "count must be >= 0");
+      for (std::size_t j = 0; j < i; ++j)
+        if (objects[j].model == objects[i].model)
+          throw InvalidInput(who, "model " + std::to_string(objects[i].model) + " is listed twice");
+    }
+  }
+
   std::vector<SixDofModel> models_;
   SixDofSettings settings_;
   typename Backend::Renderer renderer_;
   SurfaceFit<Backend> surface_fit_;
   std::vector<float> diameter_;  ///< per model, an upper bound (2 x the largest vertex distance), metres
+  std::vector<float> size_m_;    ///< per model, its bounding box's diagonal, metres
+  /// per model, its bounding box's smallest and largest face, m^2 (the scene search's size rules)
+  std::vector<std::pair<float, float>> face_m2_;
 };
 
 }  // namespace perch2
