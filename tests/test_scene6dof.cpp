@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <optional>
 #include <set>
 #include <vector>
 
@@ -42,15 +43,23 @@ struct Table {
   RgbdFrame rgbd;
   std::vector<int> model_of;  ///< per scene object
   std::vector<Pose> gt;       ///< T_cam_obj per scene object
+  Pose T_world_cam = Pose::Identity();
 };
 
-/// A 320 x 240 frame of the placements and distractors on the generator's table, seen from ~0.6 m at
-/// 45 deg elevation.
+/// The table's size and where the camera stands (world frame: table top at z = 0, floor at -0.75 m).
+struct Stage {
+  float table_x_m = 1.4f, table_y_m = 1.0f;
+  Eigen::Vector3f eye{0.f, -0.42f, 0.45f}, target{0.f, 0.f, 0.04f};
+};
+
+/// A 320 x 240 frame of the placements and distractors on the generator's table, by default seen from
+/// ~0.6 m at 45 deg elevation.
 Table make_table(const std::vector<Placement>& objects, const std::vector<BoxProp>& props = {},
-                 std::uint64_t seed = 1) {
+                 std::uint64_t seed = 1, const Stage& stage = {}) {
   Table t;
   t.models = synth::builtin_models();
   synth::SceneSettings ss;  // the environment (table, room) of a generated scene, nothing on the table
+  ss.table_size_x_m = stage.table_x_m, ss.table_size_y_m = stage.table_y_m;
   ss.min_objects = ss.max_objects = 1;
   ss.min_distractors = ss.max_distractors = 0;
   synth::Rng rng(seed);
@@ -74,10 +83,10 @@ Table make_table(const std::vector<Placement>& objects, const std::vector<BoxPro
   const synth::SceneRenderer renderer(t.models, scene);
   synth::SensorSettings sensor;
   sensor.camera = {307.5f, 307.5f, 159.5f, 119.5f, 320, 240};
-  const Pose T_world_cam = synth::look_at({0.f, -0.42f, 0.45f}, {0.f, 0.f, 0.04f});
-  t.frame = renderer.render(T_world_cam, sensor, rng);
+  t.T_world_cam = synth::look_at(stage.eye, stage.target);
+  t.frame = renderer.render(t.T_world_cam, sensor, rng);
   t.rgbd.camera = t.frame.camera, t.rgbd.depth_m = t.frame.depth_m, t.rgbd.rgb = t.frame.rgb;
-  for (const auto& o : scene.objects) t.gt.push_back(T_world_cam.inverse() * o.T_world_obj);
+  for (const auto& o : scene.objects) t.gt.push_back(t.T_world_cam.inverse() * o.T_world_obj);
   return t;
 }
 
@@ -149,11 +158,42 @@ TEST_CASE("segmentation: the table is removed and separate objects are separate 
   }
 }
 
+TEST_CASE("segmentation: the support is the table the objects stand on, not a larger floor beyond it") {
+  // A small table seen from 1.6 m: the floor around it holds more readings than the table top.
+  Stage far;
+  far.table_x_m = 0.7f, far.table_y_m = 0.6f;
+  far.eye = {0.f, -1.1f, 1.1f};
+  const Table t = make_table({{kCola, -0.08f, 0.f, 0.f}, {kBox, 0.1f, 0.05f, 0.4f}}, {}, 1, far);
+  // The height of the camera above a plane, and the angle of its normal to the table's.
+  const Eigen::Vector3f up_cam = t.T_world_cam.linear().transpose() * Eigen::Vector3f::UnitZ();
+  auto describe = [&](const TablePlane& p) {
+    return std::pair{p.offset_m, std::acos(std::clamp(p.normal_cam.dot(up_cam), -1.f, 1.f))};
+  };
+  SegmentationSettings largest;
+  largest.max_planes = 1;
+  const std::optional<TablePlane> floor = segment_frame(t.rgbd, largest, 0.001f).plane;
+  REQUIRE(floor.has_value());
+  INFO("largest plane: camera " << describe(*floor).first << " m above it");
+  CHECK(describe(*floor).first == doctest::Approx(1.1f + 0.75f).epsilon(0.02));  // the case of this test
+  const FrameSegments s = segment_frame(t.rgbd, {}, 0.001f);
+  REQUIRE(s.plane.has_value());
+  const auto [height_m, tilt_rad] = describe(*s.plane);
+  INFO("support: camera " << height_m << " m above it, tilted " << tilt_rad << " rad");
+  CHECK(height_m == doctest::Approx(1.1f).epsilon(0.01));
+  CHECK(tilt_rad < 0.02f);
+  for (int k = 0; k < 2; ++k) CHECK(segment_under(t, s, k) > 0);  // both objects are segments
+  CHECK(segment_under(t, s, 0) != segment_under(t, s, 1));
+}
+
 TEST_CASE("segmentation: bad settings and frames raise clear errors") {
   const Table t = make_table({{kCola, 0.f, 0.f, 0.f}});
   SegmentationSettings bad;
   bad.jump_m = -1;
   CHECK_THROWS_WITH_AS(segment_frame(t.rgbd, bad, 0.001f), doctest::Contains("jump_m"), InvalidInput);
+  SegmentationSettings no_planes;
+  no_planes.max_planes = 0;
+  CHECK_THROWS_WITH_AS(segment_frame(t.rgbd, no_planes, 0.001f), doctest::Contains("max_planes"),
+                       InvalidInput);
   RgbdFrame nan = t.rgbd;
   nan.depth_m.data[100] = NAN;
   CHECK_THROWS_AS(segment_frame(nan, {}, 0.001f), InvalidInput);

@@ -576,6 +576,7 @@ void bind_estimators(nb::module_& m) {
   sgs.def(nb::init<>());
   PERCH2_RW(sgs, SegmentationSettings, remove_plane);
   PERCH2_RW(sgs, SegmentationSettings, plane);
+  PERCH2_RW(sgs, SegmentationSettings, max_planes);
   PERCH2_RW(sgs, SegmentationSettings, plane_distance_m);
   PERCH2_RW(sgs, SegmentationSettings, max_height_m);
   PERCH2_RW(sgs, SegmentationSettings, min_depth_m);

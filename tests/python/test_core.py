@@ -224,6 +224,11 @@ def test_segment_frame_removes_the_plane_and_labels_the_object():
     labels = s.labels
     assert labels.dtype == np.int32 and labels.shape == depth.shape
     assert (labels[50:70, 70:90] == 1).all() and labels.sum() == 400
+    settings = perch2.SegmentationSettings()
+    assert settings.max_planes == 3 and settings.plane.min_inlier_fraction == pytest.approx(0.1)
+    settings.max_planes = 0
+    with pytest.raises(perch2.InvalidInput, match="max_planes"):
+        perch2.segment_frame(frame, settings, 0.0)
 
 
 def test_estimate_scene_objects_and_bad_requests():

@@ -29,7 +29,16 @@ struct SegmentationSettings {
   /// Look for a support plane (RANSAC, `plane`) and drop its readings and those below it. No plane found is
   /// allowed (the frame is then segmented as it is).
   bool remove_plane = true;
-  TablePlaneSettings plane;
+  /// RANSAC's settings; a support plane may hold only a tenth of the readings (a crowded table).
+  TablePlaneSettings plane = [] {
+    TablePlaneSettings p;
+    p.min_inlier_fraction = 0.1f;
+    return p;
+  }();
+  /// Candidate planes, found one after the other (perch2::estimate_planes). The support is the largest,
+  /// unless a plane parallel to it (within 20 deg) lies wholly more than max_height_m above it: a floor seen
+  /// around a table can hold more readings than the table top.
+  int max_planes = 3;
   /// A reading within this of the plane, or below it, is support, not object, metres. Also the height of an
   /// object's bottom that is lost with the plane.
   float plane_distance_m = 0.008f;
@@ -96,8 +105,36 @@ inline void check(const SegmentationSettings& s) {
     throw InvalidInput("SegmentationSettings::min_depth_m/max_depth_m", "need 0 <= min < max");
   if (!(s.jump_m >= 0) || !(s.jump_per_m >= 0) || !std::isfinite(s.jump_m) || !std::isfinite(s.jump_per_m))
     throw InvalidInput("SegmentationSettings::jump_m/jump_per_m", "must be finite and >= 0");
+  if (s.max_planes < 1) throw InvalidInput("SegmentationSettings::max_planes", "must be >= 1");
   if (!(s.min_area_fraction >= 0) || s.min_pixels < 1)
     throw InvalidInput("SegmentationSettings::min_area_fraction/min_pixels", "need >= 0 and >= 1");
+}
+
+/// The support among the candidate planes (SegmentationSettings::max_planes): the largest, unless a
+/// plane parallel to it lies wholly above it by more than max_height_m (a table seen over a floor:
+/// everything on the table would be dropped as too high); none if no plane holds enough readings.
+inline std::optional<TablePlane> support_plane(const RgbdFrame& frame, const SegmentationSettings& s) {
+  const std::vector<TablePlane> planes = estimate_planes(frame, s.plane, s.max_planes);
+  if (planes.empty()) return std::nullopt;
+  const std::vector<Eigen::Vector3f> pts = table_detail::sampled_points(frame, s.plane.stride);
+  // Each sampled reading's plane (the first that holds it, as estimate_planes found them), or -1.
+  std::vector<int> plane_of(pts.size(), -1);
+  for (std::size_t k = 0; k < pts.size(); ++k)
+    for (std::size_t i = 0; i < planes.size() && plane_of[k] < 0; ++i)
+      if (std::abs(planes[i].normal_cam.dot(pts[k]) + planes[i].offset_m) <= s.plane.inlier_distance_m)
+        plane_of[k] = int(i);
+  auto above = [&](std::size_t q, std::size_t i) {  // plane q parallel to plane i, all of it too high
+    const TablePlane& base = planes[i];
+    if (s.max_height_m <= 0 || planes[q].normal_cam.dot(base.normal_cam) < std::cos(0.35f)) return false;
+    int n = 0, high = 0;
+    for (std::size_t k = 0; k < pts.size(); ++k)
+      if (plane_of[k] == int(q)) ++n, high += base.normal_cam.dot(pts[k]) + base.offset_m > s.max_height_m;
+    return n > 0 && high >= 0.95 * n;
+  };
+  std::size_t support = 0;
+  for (std::size_t q = 1; q < planes.size(); ++q)
+    if (above(q, support)) support = q;
+  return planes[support];
 }
 
 }  // namespace segmentation_detail
@@ -112,13 +149,7 @@ inline FrameSegments segment_frame(const RgbdFrame& frame, const SegmentationSet
   const Intrinsics& cam = frame.camera;
   const int w = cam.width, h = cam.height;
   FrameSegments out;
-  if (s.remove_plane) {
-    try {
-      out.plane = estimate_table_plane(frame, s.plane);
-    } catch (const InvalidInput&) {  // "no table visible": segment the frame as it is
-      out.plane.reset();
-    }
-  }
+  if (s.remove_plane) out.plane = support_plane(frame, s);
   // Object readings: valid, in range, off (and above) the plane.
   std::vector<std::uint8_t> object(std::size_t(w) * std::size_t(h), 0);
   for (int v = 0; v < h; ++v)
