@@ -285,6 +285,28 @@ TEST_CASE(
   }
 }
 
+TEST_CASE("6-DoF scene: a segment of colours the model lacks is never searched for it") {
+  // A green box the can's size beside the cola can: the can's label has no green.
+  const Table t =
+      make_table({{kCola, -0.08f, 0.f, 0.f}}, {{{0.066f, 0.066f, 0.12f}, 0.08f, 0.f, {40, 200, 40}}});
+  SixDofSettings s = test_settings();
+  const SixDofSceneResult screened =
+      SixDofEstimator<cpu::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, {{kCola, 1}});
+  s.scene.min_colour_fraction = 0;
+  const SixDofSceneResult all =
+      SixDofEstimator<cpu::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, {{kCola, 1}});
+  INFO("segments " << screened.segments.size() << ", jobs " << screened.jobs << " screened, " << all.jobs
+                   << " not");
+  REQUIRE(screened.segments.size() == 2);
+  CHECK(all.jobs == 2);
+  CHECK(all.screened_out == 0);
+  CHECK(screened.jobs == 1);
+  CHECK(screened.screened_out == 1);
+  CHECK(screened.search.hypotheses_total < all.search.hypotheses_total);
+  REQUIRE(screened.poses.size() == 1);
+  CHECK(nearest_gt(t, kCola, screened.poses[0].T_cam_obj).second < 0.01);
+}
+
 TEST_CASE("6-DoF scene: bad requests raise clear errors") {
   const Table t = make_table({{kCola, 0.f, 0.f, 0.f}});
   const SixDofEstimator<cpu::Backend> estimator(sixdof_models(t.models), test_settings());
@@ -299,4 +321,9 @@ TEST_CASE("6-DoF scene: bad requests raise clear errors") {
   CHECK_THROWS_WITH_AS(estimator.estimate_scene(grey, {{kCola, 1}}), doctest::Contains("colour"),
                        InvalidInput);
   CHECK(estimator.estimate_scene(t.rgbd, {}).poses.empty());  // nothing asked, nothing placed
+  SixDofSettings bad = test_settings();
+  bad.scene.min_colour_fraction = NAN;
+  CHECK_THROWS_WITH_AS(
+      SixDofEstimator<cpu::Backend>(sixdof_models(t.models), bad).estimate_scene(t.rgbd, {{kCola, 1}}),
+      doctest::Contains("min_colour_fraction"), InvalidInput);
 }

@@ -604,6 +604,9 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, min_inlier_fraction);
   PERCH2_RW(scs, SceneSettings, min_explained_points);
   PERCH2_RW(scs, SceneSettings, explain_distance_m);
+  PERCH2_RW(scs, SceneSettings, min_colour_fraction);
+  PERCH2_RW(scs, SceneSettings, colour_samples);
+  PERCH2_RW(scs, SceneSettings, refine_after_placing);
 
   nb::class_<FrameSegment> fseg(m, "FrameSegment", doc("FrameSegment"));
   PERCH2_RO(fseg, FrameSegment, label);
@@ -685,8 +688,10 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(ssr, SixDofSceneResult, segment_points);
   PERCH2_RO(ssr, SixDofSceneResult, plane);
   PERCH2_RO(ssr, SixDofSceneResult, jobs);
+  PERCH2_RO(ssr, SixDofSceneResult, screened_out);
   PERCH2_RO(ssr, SixDofSceneResult, candidates);
   PERCH2_RO(ssr, SixDofSceneResult, rounds);
+  PERCH2_RO(ssr, SixDofSceneResult, refined);
   PERCH2_RO(ssr, SixDofSceneResult, search);
 
   static const std::string sixdof_doc = estimator_doc(

@@ -53,6 +53,7 @@
 #include <map>
 #include <optional>
 #include <random>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -136,14 +137,17 @@ struct LocalSearchSettings {
 ///            face (it cannot show m) or above max_area_faces x m's largest face (a wall, a shelf side);
 ///            around k's box, or, if k is wider than piece_extent_factor x m's size (two objects touching),
 ///            around each of ceil(area / m's largest face) pieces of it (k-means on its readings, at most
-///            max_pieces): proposals, both passes and the local search as estimate(), GICP against the
-///            whole segment
+///            max_pieces); a job whose readings' colours its model lacks is dropped (min_colour_fraction)
+///   search   per job: proposals, both passes and the local search as estimate(), GICP against its piece
+///            or its segment (with the nearby small segments an occluder may have cut from it)
 ///   explain  every job's best pose is a candidate; each round scores all candidates against the readings
 ///            still unexplained (placed objects' readings hide what is behind them and explain nothing
-///            more) and places the lowest-cost acceptable one: at least min_inlier_fraction of its rendered
-///            points explained (RGB-D test) and min_explained_points readings of its own; its readings
-///            within explain_distance_m of its full-resolution render become its own. Until every requested
-///            instance is placed or none is acceptable (the rest is missing).
+///            more) and places, among the acceptable ones (at least min_inlier_fraction of its rendered
+///            points explained by the RGB-D test and min_explained_points readings of its own), the one
+///            that explains most readings; its readings within explain_distance_m of its full-resolution
+///            render become its own, and the candidates it took readings from are refined again
+///            (refine_after_placing). Until every requested instance is placed or none is acceptable (the
+///            rest is missing).
 ///   fit      each placed object's final cost and surface fit on its own readings, as estimate()'s.
 struct SceneSettings {
   SegmentationSettings segmentation;
@@ -155,6 +159,14 @@ struct SceneSettings {
   float min_inlier_fraction = 0.7f;  ///< see above, in [0, 1]
   int min_explained_points = 15;     ///< see above (observed grid)
   float explain_distance_m = 0.01f;  ///< see above, metres
+  /// Colour screening, before any job is searched: a job goes on only if at least this fraction of its
+  /// segment's (piece's) readings have a colour its model shows somewhere (CIEDE2000 within the cost's
+  /// tau_c, on the cost's comparison colours): a segment of other colours cannot be this model whatever
+  /// its pose, so its proposals are never rendered. Loose on purpose: the part of a segment a touching
+  /// neighbour or an unmodelled object holds does not match, and the RGB-D cost decides among the jobs
+  /// that pass. 0 (or a depth-only cost) = every job is searched.
+  float min_colour_fraction = 0.3f;
+  int colour_samples = 256;  ///< readings per job the screening tests, evenly spread (>= 1)
   /// After an object is placed, the candidates whose segments lost readings to it are refined again (both
   /// GICP passes) against the readings still unexplained: a touching neighbour's readings pulled them.
   bool refine_after_placing = true;
@@ -303,9 +315,10 @@ struct SixDofSceneResult {
   std::vector<FrameSegment> segments;       ///< the frame's segments (largest first)
   std::vector<std::size_t> segment_points;  ///< per segment: its readings on the observed grid
   std::optional<TablePlane> plane;          ///< the support plane, if one was found
-  std::size_t jobs = 0;                     ///< (model, segment or piece) searches
-  std::size_t candidates = 0;               ///< jobs whose best pose showed min_rendered_points
-  std::size_t rounds = 0;                   ///< scoring rounds of the explanation
+  std::size_t jobs = 0;                     ///< (model, segment or piece) searches, after screening
+  std::size_t screened_out = 0;  ///< jobs whose segment's colours the model lacks (min_colour_fraction)
+  std::size_t candidates = 0;    ///< jobs whose best pose showed min_rendered_points
+  std::size_t rounds = 0;        ///< scoring rounds of the explanation
   std::size_t refined = 0;  ///< candidates refined again after a neighbour took readings of their segment
   /// The search's counts per job (hypotheses, rotations, depths), segment_points per job group, totals
   /// and the timings of every stage (segment and explain included); its `poses` is empty.
@@ -323,6 +336,28 @@ inline double seconds_since(Clock::time_point t) {
 inline Eigen::Vector4i mask_box(const Image<std::uint8_t>& mask) {
   const std::array<int, 4> b = mask_bbox(mask);
   return {b[0], b[1], b[2], b[3]};
+}
+
+/// A model's colours (packed sRGB), one per bin of 6 bits per channel: its vertex colours, its texture's
+/// texels (at most ~65k of them, evenly spread) or its base colour.
+inline std::vector<std::uint32_t> model_colours(const Mesh& m) {
+  std::vector<std::uint8_t> seen(std::size_t(1) << 18, 0);
+  std::vector<std::uint32_t> out;
+  auto add = [&](Rgb8 c) {
+    const std::size_t bin = std::size_t(c.r >> 2) << 12 | std::size_t(c.g >> 2) << 6 | std::size_t(c.b >> 2);
+    if (!seen[bin]) seen[bin] = 1, out.push_back(pack_rgb(c));
+  };
+  if (m.has_vertex_colors()) {
+    for (const Rgb8 c : m.vertex_colors) add(c);
+  } else if (m.has_texture()) {
+    const int w = m.texture.width, h = m.texture.height;
+    const int step = std::max(1, int(std::ceil(std::sqrt(double(w) * double(h) / 65536.0))));
+    for (int v = 0; v < h; v += step)
+      for (int u = 0; u < w; u += step) add(m.texture(u, v));
+  } else {
+    add(m.base_color);
+  }
+  return out;
 }
 
 inline float model_diameter_bound(const Mesh& m) {
@@ -409,6 +444,7 @@ class SixDofEstimator {
       std::sort(e.data(), e.data() + 3);
       size_m_.push_back(e.norm());
       face_m2_.emplace_back(e[0] * e[1], e[1] * e[2]);
+      colours_.push_back(sixdof_detail::model_colours(m.mesh));
     }
   }
 
@@ -536,6 +572,11 @@ class SixDofEstimator {
       for (std::size_t k = 0; k < S; ++k)
         if (out.segment_points[k] >= std::size_t(ss.min_segment_points))
           add_scene_jobs(frame, segments, int(k), o.model, jobs);
+    }
+    if (ss.min_colour_fraction > 0 && s.cost.use_color) {
+      const std::size_t before = jobs.size();
+      screen_colours(frame, segments.labels, jobs);
+      out.screened_out = before - jobs.size();
     }
     out.jobs = jobs.size();
     if (jobs.empty()) {
@@ -1273,6 +1314,53 @@ class SixDofEstimator {
     }
   }
 
+  /// Drops the jobs whose model lacks the colours of their readings (SceneSettings::min_colour_fraction):
+  /// up to colour_samples of each job's readings (its piece's, or its segment's), each matched if some
+  /// colour of the model is within tau_c (CIEDE2000, the cost's comparison colours).
+  void screen_colours(const RgbdFrame& frame, const LabelImage& labels, std::vector<Job>& jobs) const {
+    const SceneSettings& ss = settings_.scene;
+    const CostSettings& c = settings_.cost;
+    std::map<int, std::vector<Lab<float>>> palette;  // per model, its comparison colours
+    // (model, reading's colour bin of 6 bits per channel, as model_colours()): matched
+    std::map<std::pair<int, std::uint32_t>, bool> known;
+    auto matched = [&](int model, std::uint32_t rgb) {
+      const auto [it, fresh] = known.try_emplace({model, rgb & 0xfcfcfcu}, false);
+      if (!fresh) return it->second;
+      auto p = palette.find(model);
+      if (p == palette.end()) {  // one colour per CIELAB cell of 2 units: ~1 unit from any model colour
+        p = palette.emplace(model, std::vector<Lab<float>>{}).first;
+        std::set<std::array<int, 3>> cells;
+        for (const std::uint32_t m : colours_[std::size_t(model)]) {
+          const Lab<float> lab = comparison_lab(m, c.shading_invariant);
+          const std::array<int, 3> cell{int(std::floor(lab.L / 2)), int(std::floor(lab.a / 2)),
+                                        int(std::floor(lab.b / 2))};
+          if (cells.insert(cell).second) p->second.push_back(lab);
+        }
+      }
+      const Lab<float> lab = comparison_lab(rgb, c.shading_invariant);
+      for (const Lab<float>& m : p->second)
+        if (ciede2000(lab, m, c.lightness_factor) <= c.tau_c) return it->second = true;
+      return false;
+    };
+    std::map<std::int32_t, std::vector<std::int32_t>> pixels_of;  // segment label -> its pixels
+    for (std::size_t i = 0; i < labels.data.size(); ++i)
+      if (labels.data[i] > 0 && frame.depth_m.data[i] > 0)
+        pixels_of[labels.data[i]].push_back(std::int32_t(i));
+    std::vector<Job> kept;
+    for (Job& job : jobs) {
+      const std::vector<std::int32_t>& px =
+          job.piece_pixels.empty() ? pixels_of[job.label] : job.piece_pixels;
+      const std::size_t n = std::min(px.size(), std::size_t(ss.colour_samples));
+      std::size_t hits = 0;
+      for (std::size_t k = 0; k < n; ++k) {
+        const std::int32_t p = px[k * px.size() / n];
+        hits += matched(job.model, pack_rgb(frame.rgb.data[std::size_t(p)]));
+      }
+      if (n > 0 && float(hits) >= ss.min_colour_fraction * float(n)) kept.push_back(std::move(job));
+    }
+    jobs = std::move(kept);
+  }
+
   /// The scene jobs of `model` on segment k (SceneSettings): none if the segment is too small or too
   /// large to hold it, one around the segment's box, or one per model-sized piece of a larger segment
   /// (k-means on its readings).
@@ -1386,11 +1474,12 @@ class SixDofEstimator {
     const SceneSettings& ss = settings_.scene;
     if (!(ss.min_area_fraction >= 0) || !(ss.max_area_faces > 0) || !(ss.piece_extent_factor > 0) ||
         ss.max_pieces < 1 || !(ss.min_inlier_fraction >= 0 && ss.min_inlier_fraction <= 1) ||
-        !(ss.explain_distance_m > 0) || ss.min_segment_points < 1)
+        !(ss.explain_distance_m > 0) || ss.min_segment_points < 1 || !(ss.min_colour_fraction >= 0) ||
+        ss.colour_samples < 1)
       throw InvalidInput("SixDofSettings::scene",
                          "needs min_area_fraction >= 0, max_area_faces > 0, piece_extent_factor > 0, "
-                         "max_pieces >= 1, min_inlier_fraction in [0, 1], explain_distance_m > 0 and "
-                         "min_segment_points >= 1");
+                         "max_pieces >= 1, min_inlier_fraction in [0, 1], explain_distance_m > 0, "
+                         "min_segment_points >= 1, min_colour_fraction >= 0 and colour_samples >= 1");
     for (std::size_t i = 0; i < objects.size(); ++i) {
       const std::string who = "objects[" + std::to_string(i) + "]";
       if (objects[i].model < 0 || std::size_t(objects[i].model) >= models_.size())
@@ -1411,6 +1500,7 @@ class SixDofEstimator {
   std::vector<float> size_m_;    ///< per model, its bounding box's diagonal, metres
   /// per model, its bounding box's smallest and largest face, m^2 (the scene search's size rules)
   std::vector<std::pair<float, float>> face_m2_;
+  std::vector<std::vector<std::uint32_t>> colours_;  ///< per model, sixdof_detail::model_colours()
 };
 
 }  // namespace perch2
