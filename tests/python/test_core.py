@@ -244,7 +244,7 @@ def test_estimate_scene_objects_and_bad_requests():
         est.estimate_scene(depth, rgb, K, [(3, 1)])
     with pytest.raises(perch2.InvalidInput, match="objects\\[0\\]"):
         est.estimate_scene(depth, rgb, K, ["cube"])
-    assert est.settings.scene.min_inlier_fraction == pytest.approx(0.7)
+    assert est.settings.scene.min_inlier_fraction == pytest.approx(0.55)
     assert est.settings.scene.min_colour_fraction == pytest.approx(0.3)
     assert r.jobs + r.screened_out >= 1
     assert "segment" in perch2.SceneSettings.__doc__.lower() or perch2.SceneSettings.__doc__
