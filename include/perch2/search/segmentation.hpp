@@ -117,23 +117,19 @@ inline std::optional<TablePlane> support_plane(const RgbdFrame& frame, const Seg
   const std::vector<TablePlane> planes = estimate_planes(frame, s.plane, s.max_planes);
   if (planes.empty()) return std::nullopt;
   const std::vector<Eigen::Vector3f> pts = table_detail::sampled_points(frame, s.plane.stride);
-  // Each sampled reading's plane (the first that holds it, as estimate_planes found them), or -1.
-  std::vector<int> plane_of(pts.size(), -1);
-  for (std::size_t k = 0; k < pts.size(); ++k)
-    for (std::size_t i = 0; i < planes.size() && plane_of[k] < 0; ++i)
-      if (std::abs(planes[i].normal_cam.dot(pts[k]) + planes[i].offset_m) <= s.plane.inlier_distance_m)
-        plane_of[k] = int(i);
-  auto above = [&](std::size_t q, std::size_t i) {  // plane q parallel to plane i, all of it too high
-    const TablePlane& base = planes[i];
-    if (s.max_height_m <= 0 || planes[q].normal_cam.dot(base.normal_cam) < std::cos(0.35f)) return false;
+  auto height = [&](const TablePlane& p, const Eigen::Vector3f& x) {
+    return p.normal_cam.dot(x) + p.offset_m;
+  };
+  auto above = [&](const TablePlane& q, const TablePlane& base) {  // q parallel to base, all of it too high
+    if (s.max_height_m <= 0 || q.normal_cam.dot(base.normal_cam) < std::cos(0.35f)) return false;  // 20 deg
     int n = 0, high = 0;
-    for (std::size_t k = 0; k < pts.size(); ++k)
-      if (plane_of[k] == int(q)) ++n, high += base.normal_cam.dot(pts[k]) + base.offset_m > s.max_height_m;
+    for (const auto& x : pts)
+      if (std::abs(height(q, x)) <= s.plane.inlier_distance_m) ++n, high += height(base, x) > s.max_height_m;
     return n > 0 && high >= 0.95 * n;
   };
   std::size_t support = 0;
   for (std::size_t q = 1; q < planes.size(); ++q)
-    if (above(q, support)) support = q;
+    if (above(planes[q], planes[support])) support = q;
   return planes[support];
 }
 
