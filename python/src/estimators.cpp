@@ -692,6 +692,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(ssr, SixDofSceneResult, candidates);
   PERCH2_RO(ssr, SixDofSceneResult, rounds);
   PERCH2_RO(ssr, SixDofSceneResult, refined);
+  PERCH2_RO(ssr, SixDofSceneResult, reverted);
   PERCH2_RO(ssr, SixDofSceneResult, search);
 
   static const std::string sixdof_doc = estimator_doc(

@@ -247,4 +247,5 @@ def test_estimate_scene_objects_and_bad_requests():
     assert est.settings.scene.min_inlier_fraction == pytest.approx(0.55)
     assert est.settings.scene.min_colour_fraction == pytest.approx(0.3)
     assert r.jobs + r.screened_out >= 1
+    assert r.refined == 0 and r.reverted == 0  # one object: nothing placed before it
     assert "segment" in perch2.SceneSettings.__doc__.lower() or perch2.SceneSettings.__doc__
