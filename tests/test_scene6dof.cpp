@@ -30,11 +30,13 @@ struct Placement {
   float x, y, yaw;
 };
 
-/// A box-shaped distractor: size (metres), centre (x, y) on the table, flat colour.
+/// A box-shaped distractor: size (metres), centre (x, y) on the table, flat colour, its bottom `z` above
+/// the table (on top of an object).
 struct BoxProp {
   Eigen::Vector3f size;
   float x, y;
   Rgb8 colour;
+  float z = 0.f;
 };
 
 struct Table {
@@ -77,7 +79,7 @@ Table make_table(const std::vector<Placement>& objects, const std::vector<BoxPro
     synth::Prop prop;
     prop.mesh = synth::textured_box(b.size, ColorImage(4, 4, b.colour), 0.1f);
     prop.T_world_obj = Pose::Identity();
-    prop.T_world_obj.translation() = Eigen::Vector3f(b.x, b.y, b.size.z() / 2 + 0.001f);
+    prop.T_world_obj.translation() = Eigen::Vector3f(b.x, b.y, b.z + b.size.z() / 2 + 0.001f);
     scene.distractors.push_back(prop);
   }
   const synth::SceneRenderer renderer(t.models, scene);
@@ -156,6 +158,25 @@ TEST_CASE("segmentation: the table is removed and separate objects are separate 
     INFO("object " << k << ": " << in << " of " << all << " pixels in its segment");
     CHECK(in > 0.85 * all);
   }
+}
+
+TEST_CASE("segmentation: the readings a mask marks are segmented as segment_frame's") {
+  const Table t = make_table({{kCola, -0.1f, 0.f, 0.f}, {kBox, 0.08f, 0.03f, 0.4f}});
+  const FrameSegments all = segment_frame(t.rgbd, {}, 0.001f);
+  const int a = segment_under(t, all, 0);
+  REQUIRE(a > 0);
+  std::vector<std::uint8_t> mask(all.labels.data.size(), 0);  // the can's segment only
+  for (std::size_t i = 0; i < mask.size(); ++i) mask[i] = all.labels.data[i] == a;
+  const FrameSegments can = segment_readings(t.rgbd, mask, {}, 0.001f);
+  REQUIRE(can.segments.size() == 1);
+  CHECK(can.segments[0].pixels == all.segments[std::size_t(a - 1)].pixels);
+  CHECK(can.segments[0].area_m2 == doctest::Approx(all.segments[std::size_t(a - 1)].area_m2));
+  CHECK(!can.plane.has_value());
+  for (std::size_t i = 0; i < mask.size(); ++i)
+    if (can.labels.data[i] != (mask[i] ? 1 : 0)) FAIL("pixel " << i << " labelled " << can.labels.data[i]);
+  CHECK(segment_readings(t.rgbd, std::vector<std::uint8_t>(mask.size(), 0), {}, 0.001f).segments.empty());
+  CHECK_THROWS_WITH_AS(segment_readings(t.rgbd, std::vector<std::uint8_t>(10, 1), {}, 0.001f),
+                       doctest::Contains("object mask"), InvalidInput);
 }
 
 TEST_CASE("segmentation: the support is the table the objects stand on, not a larger floor beyond it") {
@@ -351,4 +372,53 @@ TEST_CASE("6-DoF scene: a refinement after a placement that explains fewer readi
       SixDofEstimator<cpu::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, objects);
   CHECK(off.refined == 0);
   CHECK(off.reverted == 0);
+}
+
+TEST_CASE("6-DoF scene: an object with a distractor stacked on it is found in a piece of their segment") {
+  // A green carton on the printed box: one segment, not much wider than the box, but twice its area.
+  const Table t =
+      make_table({{kBox, 0.f, 0.f, 0.f}}, {{{0.12f, 0.06f, 0.12f},
+                                            0.f,
+                                            0.f,
+                                            Rgb8{60, 160, 60},
+                                            synth::builtin_models()[kBox].mesh.bounds().sizes().z()}});
+  SixDofSettings s = test_settings();
+  const SixDofSceneResult r =
+      SixDofEstimator<cpu::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, {{kBox, 1}});
+  INFO("segments " << r.segments.size() << ", jobs " << r.jobs << ", candidates " << r.candidates);
+  REQUIRE(r.segments.size() == 1);
+  CHECK(r.jobs == 2);  // two pieces of the segment
+  REQUIRE(r.poses.size() == 1);
+  CHECK(nearest_gt(t, kBox, r.poses[0].T_cam_obj).second < 0.01);
+  s.scene.piece_area_faces = 1e9f;  // the extent rule alone: one job on the whole segment
+  CHECK(SixDofEstimator<cpu::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, {{kBox, 1}}).jobs ==
+        1);
+}
+
+TEST_CASE("6-DoF scene: an object sharing a segment with a placed neighbour is found on what it leaves") {
+  // The block against the printed box's front: one segment. With max_area_faces 4 that segment is too
+  // large to be searched for the block (as a shelf side would be); once the box is placed, its readings
+  // that the box does not explain are segmented again and the block is searched for on them.
+  const Table t = make_table({{kBox, 0.f, 0.f, 0.f}, {kBlock, 0.f, -0.05f, 0.f}});
+  SixDofSettings s = test_settings();
+  const FrameSegments seg = segment_frame(t.rgbd, s.scene.segmentation, 0.001f);
+  REQUIRE(segment_under(t, seg, 0) > 0);
+  CHECK(segment_under(t, seg, 0) == segment_under(t, seg, 1));  // the case this test is about
+  s.scene.max_area_faces = 4.f;
+  const std::vector<SixDofObject> objects{{kBox, 1}, {kBlock, 1}};
+  const SixDofSceneResult r =
+      SixDofEstimator<cpu::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, objects);
+  INFO("jobs " << r.jobs << ", residual segments " << r.residual_segments);
+  CHECK(r.residual_segments >= 1);
+  REQUIRE(r.poses.size() == 2);
+  CHECK(r.missing == std::vector<int>{0, 0});
+  for (const auto& p : r.poses) {
+    INFO("model " << p.model);
+    CHECK(nearest_gt(t, p.model, p.T_cam_obj).second < 0.01);
+  }
+  s.scene.residual_pass = false;  // the block is then missing
+  const SixDofSceneResult one =
+      SixDofEstimator<cpu::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, objects);
+  CHECK(one.residual_segments == 0);
+  CHECK(one.missing == std::vector<int>{0, 1});
 }

@@ -599,6 +599,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, min_area_fraction);
   PERCH2_RW(scs, SceneSettings, max_area_faces);
   PERCH2_RW(scs, SceneSettings, piece_extent_factor);
+  PERCH2_RW(scs, SceneSettings, piece_area_faces);
   PERCH2_RW(scs, SceneSettings, max_pieces);
   PERCH2_RW(scs, SceneSettings, min_segment_points);
   PERCH2_RW(scs, SceneSettings, min_inlier_fraction);
@@ -606,6 +607,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, explain_distance_m);
   PERCH2_RW(scs, SceneSettings, min_colour_fraction);
   PERCH2_RW(scs, SceneSettings, colour_samples);
+  PERCH2_RW(scs, SceneSettings, residual_pass);
   PERCH2_RW(scs, SceneSettings, refine_after_placing);
 
   nb::class_<FrameSegment> fseg(m, "FrameSegment", doc("FrameSegment"));
@@ -639,6 +641,20 @@ void bind_estimators(nb::module_& m) {
       },
       nb::arg("frame"), nb::arg("settings") = SegmentationSettings{}, nb::arg("min_model_face_m2") = 0.f,
       doc("segment_frame"));
+  m.def(
+      "segment_readings",
+      [](const RgbdFrame& frame, nb::handle mask, const SegmentationSettings& settings,
+         float min_model_face_m2) {
+        const Image<std::uint8_t> m = mask_from(mask, "mask");
+        if (m.width != frame.camera.width || m.height != frame.camera.height)
+          throw InvalidInput("mask", "is " + std::to_string(m.height) + " x " + std::to_string(m.width) +
+                                         ", the frame " + std::to_string(frame.camera.height) + " x " +
+                                         std::to_string(frame.camera.width));
+        nb::gil_scoped_release release;
+        return segment_readings(frame, m.data, settings, min_model_face_m2);
+      },
+      nb::arg("frame"), nb::arg("mask"), nb::arg("settings") = SegmentationSettings{},
+      nb::arg("min_model_face_m2") = 0.f, doc("segment_readings"));
 
   nb::class_<SixDofObject> sobj(m, "SixDofObject", doc("SixDofObject"));
   sobj.def(nb::init<>())
@@ -693,6 +709,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(ssr, SixDofSceneResult, rounds);
   PERCH2_RO(ssr, SixDofSceneResult, refined);
   PERCH2_RO(ssr, SixDofSceneResult, reverted);
+  PERCH2_RO(ssr, SixDofSceneResult, residual_segments);
   PERCH2_RO(ssr, SixDofSceneResult, search);
 
   static const std::string sixdof_doc = estimator_doc(

@@ -231,6 +231,20 @@ def test_segment_frame_removes_the_plane_and_labels_the_object():
         perch2.segment_frame(frame, settings, 0.0)
 
 
+def test_segment_readings_segments_a_mask_and_checks_it():
+    depth, rgb, K = _table_with_box()
+    frame = perch2.RgbdFrame(depth, rgb, K)
+    mask = np.zeros(depth.shape, bool)
+    mask[50:70, 70:80] = True  # the left half of the cube's top
+    s = perch2.segment_readings(frame, mask, perch2.SegmentationSettings(), 0.0)
+    assert len(s.segments) == 1 and s.segments[0].pixels == 200 and s.plane is None
+    assert (s.labels[50:70, 70:80] == 1).all() and s.labels.sum() == 200
+    with pytest.raises(perch2.InvalidInput, match="mask"):
+        perch2.segment_readings(frame, mask[:10])
+    with pytest.raises(perch2.InvalidInput, match="bool or uint8"):
+        perch2.segment_readings(frame, mask.astype(np.float32))
+
+
 def test_estimate_scene_objects_and_bad_requests():
     v, f = box_mesh(0.06)
     est = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu")
@@ -246,6 +260,8 @@ def test_estimate_scene_objects_and_bad_requests():
         est.estimate_scene(depth, rgb, K, ["cube"])
     assert est.settings.scene.min_inlier_fraction == pytest.approx(0.55)
     assert est.settings.scene.min_colour_fraction == pytest.approx(0.3)
+    assert est.settings.scene.piece_area_faces == pytest.approx(1.0)
     assert r.jobs + r.screened_out >= 1
     assert r.refined == 0 and r.reverted == 0  # one object: nothing placed before it
+    assert r.residual_segments == 0 and est.settings.scene.residual_pass
     assert "segment" in perch2.SceneSettings.__doc__.lower() or perch2.SceneSettings.__doc__

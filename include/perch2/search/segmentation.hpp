@@ -135,34 +135,28 @@ inline std::optional<TablePlane> support_plane(const RgbdFrame& frame, const Seg
 
 }  // namespace segmentation_detail
 
-/// The frame's segments (see the file comment). `min_model_face_m2`: the smallest bounding-box face of the
-/// smallest model, m^2 (the size rule). Throws InvalidInput for a malformed frame or bad settings.
-inline FrameSegments segment_frame(const RgbdFrame& frame, const SegmentationSettings& s,
-                                   float min_model_face_m2) {
+/// The segments of the readings `mask` marks (full resolution, row-major; nonzero = an object reading, kept
+/// if its depth is within [min_depth_m, max_depth_m]):
+/// connected components where neighbouring depths do not jump, the size rule of segment_frame(), largest
+/// first; `plane` and `support_pixels` are left unset. segment_frame()'s second half, also used on what is
+/// left of segments once some of their readings are explained (SixDofEstimator::estimate_scene). Throws
+/// InvalidInput for a malformed frame, a mask of the wrong size or bad settings.
+inline FrameSegments segment_readings(const RgbdFrame& frame, const std::vector<std::uint8_t>& mask,
+                                      const SegmentationSettings& s, float min_model_face_m2) {
   using namespace segmentation_detail;
   frame.validate("segmented frame");
   check(s);
   const Intrinsics& cam = frame.camera;
   const int w = cam.width, h = cam.height;
+  if (mask.size() != std::size_t(w) * std::size_t(h))
+    throw InvalidInput("segment_readings: object mask",
+                       "has " + std::to_string(mask.size()) + " pixels, the frame " + std::to_string(w * h));
+  std::vector<std::uint8_t> object(mask.size(), 0);  // marked readings with a depth in range
+  for (std::size_t i = 0; i < mask.size(); ++i) {
+    const float d = frame.depth_m.data[i];
+    object[i] = mask[i] && d >= s.min_depth_m && d <= s.max_depth_m;
+  }
   FrameSegments out;
-  if (s.remove_plane) out.plane = support_plane(frame, s);
-  // Object readings: valid, in range, off (and above) the plane.
-  std::vector<std::uint8_t> object(std::size_t(w) * std::size_t(h), 0);
-  for (int v = 0; v < h; ++v)
-    for (int u = 0; u < w; ++u) {
-      const float d = frame.depth_m(u, v);
-      if (!(d >= s.min_depth_m && d <= s.max_depth_m)) continue;
-      if (out.plane) {
-        const Eigen::Vector3f p = point_at(cam, u, v, d);
-        const float height = out.plane->normal_cam.dot(p) + out.plane->offset_m;
-        if (height <= s.plane_distance_m) {
-          ++out.support_pixels;
-          continue;
-        }
-        if (s.max_height_m > 0 && height > s.max_height_m) continue;
-      }
-      object[std::size_t(v) * std::size_t(w) + std::size_t(u)] = 1;
-    }
   // Connected components (union-find over 4-neighbours that do not jump).
   std::vector<int> parent(object.size());
   std::iota(parent.begin(), parent.end(), 0);
@@ -247,6 +241,40 @@ inline FrameSegments segment_frame(const RgbdFrame& frame, const SegmentationSet
     std::nth_element(d.begin(), d.begin() + std::ptrdiff_t(q), d.end());
     out.segments[k].extent_m = 2.f * d[q];
   }
+  return out;
+}
+
+/// The frame's segments (see the file comment). `min_model_face_m2`: the smallest bounding-box face of the
+/// smallest model, m^2 (the size rule). Throws InvalidInput for a malformed frame or bad settings.
+inline FrameSegments segment_frame(const RgbdFrame& frame, const SegmentationSettings& s,
+                                   float min_model_face_m2) {
+  using namespace segmentation_detail;
+  frame.validate("segmented frame");
+  check(s);
+  const Intrinsics& cam = frame.camera;
+  const int w = cam.width, h = cam.height;
+  std::optional<TablePlane> plane;
+  if (s.remove_plane) plane = support_plane(frame, s);
+  // Object readings: valid, in range, off (and above) the plane.
+  int support_pixels = 0;
+  std::vector<std::uint8_t> object(std::size_t(w) * std::size_t(h), 0);
+  for (int v = 0; v < h; ++v)
+    for (int u = 0; u < w; ++u) {
+      const float d = frame.depth_m(u, v);
+      if (!(d >= s.min_depth_m && d <= s.max_depth_m)) continue;
+      if (plane) {
+        const Eigen::Vector3f p = point_at(cam, u, v, d);
+        const float height = plane->normal_cam.dot(p) + plane->offset_m;
+        if (height <= s.plane_distance_m) {
+          ++support_pixels;
+          continue;
+        }
+        if (s.max_height_m > 0 && height > s.max_height_m) continue;
+      }
+      object[std::size_t(v) * std::size_t(w) + std::size_t(u)] = 1;
+    }
+  FrameSegments out = segment_readings(frame, object, s, min_model_face_m2);
+  out.plane = plane, out.support_pixels = support_pixels;
   return out;
 }
 
