@@ -970,12 +970,13 @@ class SixDofEstimator {
   }
 
   /// Both GICP passes of candidates[touched] again, against `unexplained` (ctx's cost clouds, its
-  /// registration unset): the readings a placed neighbour took no longer pull them. The time counts in render
-  /// and refine, not in explain.
+  /// registration unset): the readings a placed neighbour took no longer pull them. The time counts in
+  /// observed (the GICP targets), render and refine, not in explain.
   void refine_again(const Context& ctx, const CloudBatch& unexplained, std::vector<Hypothesis>& candidates,
                     const std::vector<std::size_t>& touched, SixDofResult& result) const {
     const auto t = sixdof_detail::Clock::now();
     const typename Backend::Registration registration(unexplained);
+    result.timings.observed += sixdof_detail::seconds_since(t);  // as the search's GICP targets
     Context with_targets = ctx;
     with_targets.registration = &registration;
     std::vector<Hypothesis> moved;
