@@ -604,6 +604,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, min_segment_points);
   PERCH2_RW(scs, SceneSettings, min_inlier_fraction);
   PERCH2_RW(scs, SceneSettings, min_explained_points);
+  PERCH2_RW(scs, SceneSettings, max_colour_mismatch);
   PERCH2_RW(scs, SceneSettings, explain_distance_m);
   PERCH2_RW(scs, SceneSettings, min_colour_fraction);
   PERCH2_RW(scs, SceneSettings, colour_samples);

@@ -261,6 +261,7 @@ def test_estimate_scene_objects_and_bad_requests():
     assert est.settings.scene.min_inlier_fraction == pytest.approx(0.55)
     assert est.settings.scene.min_colour_fraction == pytest.approx(0.3)
     assert est.settings.scene.piece_area_faces == pytest.approx(1.0)
+    assert est.settings.scene.max_colour_mismatch == pytest.approx(0.5)
     assert r.jobs + r.screened_out >= 1
     assert r.refined == 0 and r.reverted == 0  # one object: nothing placed before it
     assert r.residual_segments == 0 and est.settings.scene.residual_pass
