@@ -408,6 +408,7 @@ TEST_CASE("6-DoF: chunks under a memory budget, 10x the proposals run within the
   // The passes' chunks are counted here; the local search's batches (chunked the same way, counted only in
   // peak_chunk_bytes) would set the peak this test halves.
   st.local.candidates_per_instance = 0;
+  st.keep_per_instance = 0;  // every hypothesis through both passes: both scale with the proposals
   SixDofEstimator<B> estimator(sixdof_models(s.models), st);
   const std::vector<SixDofInstance> one{s.instances[0]};
   const SixDofResult whole = estimator.estimate(s.rgbd, one);
