@@ -133,29 +133,12 @@ inline std::optional<TablePlane> support_plane(const RgbdFrame& frame, const Seg
   return planes[support];
 }
 
-}  // namespace segmentation_detail
-
-/// The segments of the readings `mask` marks (full resolution, row-major; nonzero = an object reading, kept
-/// if its depth is within [min_depth_m, max_depth_m]):
-/// connected components where neighbouring depths do not jump, the size rule of segment_frame(), largest
-/// first; `plane` and `support_pixels` are left unset. segment_frame()'s second half, also used on what is
-/// left of segments once some of their readings are explained (SixDofEstimator::estimate_scene). Throws
-/// InvalidInput for a malformed frame, a mask of the wrong size or bad settings.
-inline FrameSegments segment_readings(const RgbdFrame& frame, const std::vector<std::uint8_t>& mask,
-                                      const SegmentationSettings& s, float min_model_face_m2) {
-  using namespace segmentation_detail;
-  frame.validate("segmented frame");
-  check(s);
+/// segment_readings() on a checked frame and settings: `object` marks the readings to segment (depth in
+/// range).
+inline FrameSegments components(const RgbdFrame& frame, const std::vector<std::uint8_t>& object,
+                                const SegmentationSettings& s, float min_model_face_m2) {
   const Intrinsics& cam = frame.camera;
   const int w = cam.width, h = cam.height;
-  if (mask.size() != std::size_t(w) * std::size_t(h))
-    throw InvalidInput("segment_readings: object mask",
-                       "has " + std::to_string(mask.size()) + " pixels, the frame " + std::to_string(w * h));
-  std::vector<std::uint8_t> object(mask.size(), 0);  // marked readings with a depth in range
-  for (std::size_t i = 0; i < mask.size(); ++i) {
-    const float d = frame.depth_m.data[i];
-    object[i] = mask[i] && d >= s.min_depth_m && d <= s.max_depth_m;
-  }
   FrameSegments out;
   // Connected components (union-find over 4-neighbours that do not jump).
   std::vector<int> parent(object.size());
@@ -244,6 +227,31 @@ inline FrameSegments segment_readings(const RgbdFrame& frame, const std::vector<
   return out;
 }
 
+}  // namespace segmentation_detail
+
+/// The segments of the readings `mask` marks (full resolution, row-major; nonzero = an object reading, kept
+/// if its depth is within [min_depth_m, max_depth_m]):
+/// connected components where neighbouring depths do not jump, the size rule of segment_frame(), largest
+/// first; `plane` and `support_pixels` are left unset. segment_frame()'s second half, also used on what is
+/// left of segments once some of their readings are explained (SixDofEstimator::estimate_scene). Throws
+/// InvalidInput for a malformed frame, a mask of the wrong size or bad settings.
+inline FrameSegments segment_readings(const RgbdFrame& frame, const std::vector<std::uint8_t>& mask,
+                                      const SegmentationSettings& s, float min_model_face_m2) {
+  using namespace segmentation_detail;
+  frame.validate("segmented frame");
+  check(s);
+  const int w = frame.camera.width, h = frame.camera.height;
+  if (mask.size() != std::size_t(w) * std::size_t(h))
+    throw InvalidInput("segment_readings: object mask",
+                       "has " + std::to_string(mask.size()) + " pixels, the frame " + std::to_string(w * h));
+  std::vector<std::uint8_t> object(mask.size(), 0);  // marked readings with a depth in range
+  for (std::size_t i = 0; i < mask.size(); ++i) {
+    const float d = frame.depth_m.data[i];
+    object[i] = mask[i] && d >= s.min_depth_m && d <= s.max_depth_m;
+  }
+  return components(frame, object, s, min_model_face_m2);
+}
+
 /// The frame's segments (see the file comment). `min_model_face_m2`: the smallest bounding-box face of the
 /// smallest model, m^2 (the size rule). Throws InvalidInput for a malformed frame or bad settings.
 inline FrameSegments segment_frame(const RgbdFrame& frame, const SegmentationSettings& s,
@@ -273,7 +281,7 @@ inline FrameSegments segment_frame(const RgbdFrame& frame, const SegmentationSet
       }
       object[std::size_t(v) * std::size_t(w) + std::size_t(u)] = 1;
     }
-  FrameSegments out = segment_readings(frame, object, s, min_model_face_m2);
+  FrameSegments out = components(frame, object, s, min_model_face_m2);
   out.plane = plane, out.support_pixels = support_pixels;
   return out;
 }
