@@ -350,6 +350,11 @@ TEST_CASE("6-DoF scene: bad requests raise clear errors") {
       SixDofEstimator<cpu::Backend>(sixdof_models(t.models), bad).estimate_scene(t.rgbd, {{kCola, 1}}),
       doctest::Contains("min_colour_fraction"), InvalidInput);
   bad = test_settings();
+  bad.scene.piece_area_faces = 0.f;
+  CHECK_THROWS_WITH_AS(
+      SixDofEstimator<cpu::Backend>(sixdof_models(t.models), bad).estimate_scene(t.rgbd, {{kCola, 1}}),
+      doctest::Contains("piece_area_faces"), InvalidInput);
+  bad = test_settings();
   bad.scene.max_colour_mismatch = 1.5f;
   CHECK_THROWS_WITH_AS(
       SixDofEstimator<cpu::Backend>(sixdof_models(t.models), bad).estimate_scene(t.rgbd, {{kCola, 1}}),
