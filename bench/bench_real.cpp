@@ -14,6 +14,7 @@
 // Usage: bench_real [--dataset DIR] [--dir SCRATCH (/tmp/perch2_bench_real)] [--seed S (1)]
 //   [--masks gt|det|both] [--backend cpu|thrust_omp (thrust_omp)] [--peer 0|1 (1)] [--perch2 0|1 (1)]
 //   [--fit N (SixDofSettings::fit.iterations; 0 = no final fit)]
+//   [--target-stride N (SixDofSettings::first_pass_target_stride)]
 #include <omp.h>
 
 #include <chrono>
@@ -52,13 +53,14 @@ struct Options {
   std::vector<std::string> masks{"gt", "det"};
   dataset::BackendKind backend = dataset::BackendKind::ThrustOmp;
   bool peer = true;
-  bool perch2 = true;  ///< --perch2 0: the peer alone
-  int fit = -1;        ///< >= 0: SixDofSettings::fit.iterations
+  bool perch2 = true;      ///< --perch2 0: the peer alone
+  int fit = -1;            ///< >= 0: SixDofSettings::fit.iterations
+  int target_stride = -1;  ///< >= 1: SixDofSettings::first_pass_target_stride
 };
 
 constexpr const char* kUsage =
     "bench_real [--dataset DIR] [--dir SCRATCH] [--seed S] [--masks gt|det|both] [--backend cpu|thrust_omp] "
-    "[--peer 0|1] [--perch2 0|1] [--fit N]";
+    "[--peer 0|1] [--perch2 0|1] [--fit N] [--target-stride N]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -83,6 +85,9 @@ Options parse(int argc, char** argv) {
       o.perch2 = v != "0";
     } else if (a == "--fit") {
       o.fit = std::stoi(v);
+    } else if (a == "--target-stride") {
+      o.target_stride = std::stoi(v);
+      if (o.target_stride < 1) throw InvalidInput("--target-stride", "must be >= 1");
     } else {
       throw InvalidInput(a, std::string("unknown argument; usage: ") + kUsage);
     }
@@ -143,6 +148,7 @@ std::vector<dataset::PoseEstimate> run_perch2(const Options& o, const dataset::B
     model_of[id] = int(models.size()), models.push_back(sixdof_model(data.load_model(id), info));
   SixDofSettings settings;
   if (o.fit >= 0) settings.fit.iterations = o.fit;
+  if (o.target_stride >= 1) settings.first_pass_target_stride = o.target_stride;
   const SixDofEstimator<Backend> estimator(std::move(models), settings);
   auto by_image = dataset::detections_by_image(detections);
   dataset::ImageLoadOptions load;

@@ -23,6 +23,7 @@
 //                     [--dedupe 0|1 (de-duplication after the ICP warm-up)]
 //                     [--local-select 0|1 (the local search's winner by its own cost or the final one)]
 //                     [--fit N (Gauss-Newton steps of the final surface fit, 0 = off)]
+//                     [--target-stride N (the first pass' GICP target grid, pixels)]
 #include <omp.h>
 
 #include <cstdio>
@@ -63,8 +64,9 @@ struct Options {
   int local_candidates = -1, local_sweep = -1, dedupe = -1,
       local_select = -1;  ///< >= 0: SixDofSettings overrides
   int warmup = -1,
-      iterations = -1;  ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
-  int fit = -1;         ///< >= 0: SixDofSettings::fit.iterations
+      iterations = -1;     ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
+  int fit = -1;            ///< >= 0: SixDofSettings::fit.iterations
+  int target_stride = -1;  ///< >= 1: SixDofSettings::first_pass_target_stride
   std::string child_masks, child_backend;  ///< internal: run one configuration over [first, last] and exit
 };
 
@@ -72,7 +74,8 @@ constexpr const char* kUsage =
     "bench_sixdof [--scenes N] [--seed S] [--only A-B] [--masks gt|det|none|both] [--backend "
     "cpu|thrust_omp|both]\n"
     "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]\n"
-    "             [--local N] [--sweep N] [--dedupe 0|1] [--local-select 0|1] [--fit N]";
+    "             [--local N] [--sweep N] [--dedupe 0|1] [--local-select 0|1] [--fit N]\n"
+    "             [--target-stride N]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -113,6 +116,9 @@ Options parse(int argc, char** argv) {
                          : o.local_select) = std::stoi(v);
     } else if (a == "--warmup" || a == "--iterations" || a == "--fit") {
       (a == "--warmup" ? o.warmup : a == "--fit" ? o.fit : o.iterations) = std::stoi(v);
+    } else if (a == "--target-stride") {
+      o.target_stride = std::stoi(v);
+      if (o.target_stride < 1) throw InvalidInput("--target-stride", "must be >= 1");
     } else if (a == "--dir") {
       o.dir = v;
     } else if (a == "--child" && k + 1 < argc) {
@@ -158,7 +164,8 @@ std::string child_overrides(const Options& o) {
                                              {"--sweep", o.local_sweep},
                                              {"--dedupe", o.dedupe},
                                              {"--local-select", o.local_select},
-                                             {"--fit", o.fit}};
+                                             {"--fit", o.fit},
+                                             {"--target-stride", o.target_stride}};
   for (const auto& [flag, v] : all)
     if (v >= 0) out += std::string(" ") + flag + " " + std::to_string(v);
   return out;
@@ -188,6 +195,7 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
   if (o.local_select >= 0) settings.local.select_by_local_cost = o.local_select != 0;
   if (o.iterations >= 0) settings.gicp.max_iterations = o.iterations;
   if (o.fit >= 0) settings.fit.iterations = o.fit;
+  if (o.target_stride >= 1) settings.first_pass_target_stride = o.target_stride;
   const SixDofEstimator<Backend> estimator(std::move(models), settings);
   std::vector<dataset::Detection> detections;
   std::map<std::pair<int, int>, std::vector<std::size_t>> detections_of;

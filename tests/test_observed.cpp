@@ -120,6 +120,31 @@ TEST_CASE("observed_segments splits the points by label and keeps empty labels a
     }
 }
 
+TEST_CASE("on_stride_grid thins each segment to the coarser grid, keeping small segments whole") {
+  const RgbdFrame f = plane_frame(0.7f);
+  LabelImage labels(640, 480, 0);
+  for (int v = 0; v < 480; ++v)
+    for (int u = 0; u < 640; ++u) labels(u, v) = u < 320 ? 1 : (u < 340 && v < 20 ? 2 : 0);
+  CloudBatch c = observed_segments(f, labels, {1, 2}, every(2));
+  const CloudBatch s4 = on_stride_grid(c, 640, 4, 30), s8 = observed_segments(f, labels, {1, 2}, every(8));
+  s4.validate();
+  REQUIRE(s4.num_clouds() == 2);
+  // Segment 0 is observed_segments at stride 4 exactly; segment 1 (10 x 10 = 100 points, 25 on the
+  // stride-4 grid, fewer than 30) keeps all its points.
+  const CloudBatch direct4 = observed_segments(f, labels, {1}, every(4));
+  REQUIRE(s4.cloud_size(0) == direct4.size());
+  for (std::size_t i = 0; i < direct4.size(); ++i)
+    REQUIRE((s4.pixel[i] == direct4.pixel[i] && s4.x[i] == direct4.x[i] && s4.rgb[i] == direct4.rgb[i]));
+  CHECK(s4.cloud_size(1) == c.cloud_size(1));
+  CHECK(c.cloud_size(1) == 100);
+  CHECK(on_stride_grid(c, 640, 8, 0).cloud_size(1) == s8.cloud_size(1));  // min_points 0: always thinned
+  CHECK(on_stride_grid(c, 640, 1, 0).size() == c.size());
+  // A cloud with a point without a pixel (a rendered piece, say) is kept whole.
+  c.pixel[std::size_t(c.offsets[0])] = -1;
+  CHECK(on_stride_grid(c, 640, 4, 0).cloud_size(0) == c.cloud_size(0));
+  CHECK_THROWS_WITH_AS(on_stride_grid(c, 640, 0, 0), doctest::Contains("stride must be >= 1"), InvalidInput);
+}
+
 TEST_CASE_TEMPLATE("a rendered depth image turns back into the renderer's points exactly", Backend,
                    PERCH2_CPU_RUNNABLE_BACKENDS) {
   std::mt19937 rng(7);

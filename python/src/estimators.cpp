@@ -536,6 +536,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ss, SixDofSettings, observed);
   PERCH2_RW(ss, SixDofSettings, render);
   PERCH2_RW(ss, SixDofSettings, first_pass_min_points);
+  PERCH2_RW(ss, SixDofSettings, first_pass_target_stride);
   PERCH2_RW(ss, SixDofSettings, keep_per_instance);
   PERCH2_RW(ss, SixDofSettings, distinct_translation_m);
   PERCH2_RW(ss, SixDofSettings, distinct_rotation_rad);

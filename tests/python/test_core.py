@@ -176,6 +176,7 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     s = perch2.SixDofSettings()
     assert s.render.stride == 8 and s.gicp.icp_warmup_iterations == 8  # the C++ lambdas' values
     assert s.local.cost.color_rule == perch2.ColorRule.Nearest
+    assert s.first_pass_target_stride == 4 and perch2.SixDofSettings.first_pass_target_stride.__doc__
     s.local.cost.delta_m = 0.02
     assert s.local.cost.delta_m == pytest.approx(0.02)  # nested settings are references, not copies
     s.gicp.lm.lambda_up = 7.0

@@ -91,4 +91,31 @@ inline CloudBatch observed_segments(const RgbdFrame& frame, const LabelImage& la
   return out;
 }
 
+/// Each cloud of `observed` (points of a frame `width` pixels wide) thinned to the pixels on the coarser
+/// stride grid (u, v multiples of stride), in order; a cloud that would keep fewer than min_points (or
+/// has points without a pixel) keeps all its points. Throws InvalidInput if stride < 1.
+inline CloudBatch on_stride_grid(const CloudBatch& observed, int width, int stride, std::size_t min_points) {
+  if (stride < 1) throw InvalidInput("on_stride_grid", "stride must be >= 1, got " + std::to_string(stride));
+  auto on_grid = [&](std::int32_t px) {
+    return px >= 0 && (px % width) % stride == 0 && (px / width) % stride == 0;
+  };
+  CloudBatch out;
+  for (std::size_t c = 0; c < observed.num_clouds(); ++c) {
+    const auto begin = std::size_t(observed.offsets[c]), end = std::size_t(observed.offsets[c + 1]);
+    std::size_t kept = 0;
+    bool all_pixels = true;
+    for (std::size_t i = begin; i < end; ++i)
+      kept += on_grid(observed.pixel[i]), all_pixels &= observed.pixel[i] >= 0;
+    const bool keep_all = kept < min_points || !all_pixels;
+    for (std::size_t i = begin; i < end; ++i) {
+      if (!keep_all && !on_grid(observed.pixel[i])) continue;
+      out.x.push_back(observed.x[i]), out.y.push_back(observed.y[i]), out.z.push_back(observed.z[i]);
+      out.rgb.push_back(observed.rgb[i]), out.pixel.push_back(observed.pixel[i]);
+      out.cloud.push_back(std::int32_t(c));
+    }
+    out.offsets.push_back(std::int64_t(out.size()));
+  }
+  return out;
+}
+
 }  // namespace perch2
