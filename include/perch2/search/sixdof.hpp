@@ -226,8 +226,10 @@ struct SixDofSettings {
   /// kFirstPassMinTargets keeps all. The first pass only has to bring a proposal into its basin, and GICP's
   /// time is in the nearest-neighbour searches and target covariances. 4, measured side by side on
   /// bench_sixdof (thrust_omp, Intel Xeon, 2 cores; ADD-S / ADD(-S) AUC) against 2: --masks none 98.1 /
-  /// 90.0 -> 98.2 / 90.0 at 4.95 -> 4.21 s per image; the real LINEMOD-cat frames (--masks none) AR 0.941
-  /// both, 2.04 -> 1.82 s per image.
+  /// 90.0 -> 98.2 / 90.0 at 4.95 -> 4.21 s per image; gt 99.2 / 92.5 -> 99.1 / 93.6 and det 95.0 / 90.0 ->
+  /// 95.1 / 88.3 (two printed objects turned the other way about their axis) at 1.44 -> 1.23 s per scene;
+  /// the real LINEMOD-cat frames AR 0.941 both (--masks none, 2.04 -> 1.82 s per image), 0.958 both (GT
+  /// masks), 0.916 -> 0.921 (degraded masks).
   int first_pass_target_stride = 4;
   static constexpr std::size_t kFirstPassMinTargets = 100;
   /// After the first pass every hypothesis is re-rendered at its stride and scored with first_pass_cost (a
@@ -1009,8 +1011,8 @@ class SixDofEstimator {
     const typename Backend::Registration registration(unexplained);
     result.timings.observed += sixdof_detail::seconds_since(t);  // as the search's GICP targets
     Context with_targets = ctx;
-    with_targets.registration = with_targets.first_pass_registration = &registration;  // all of them: the
-                                                                                       // candidates are near
+    // Both passes against every unexplained reading: the candidates are already near their poses.
+    with_targets.registration = with_targets.first_pass_registration = &registration;
     std::vector<Hypothesis> moved;
     for (const std::size_t i : touched) moved.push_back(candidates[i]);
     refine(with_targets, moved, render(with_targets, moved, settings_.render.stride, result), settings_.gicp,
