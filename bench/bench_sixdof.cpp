@@ -61,8 +61,9 @@ struct Options {
   std::string dir = "/tmp/perch2_bench_sixdof";
   bool eval_only = false;
   std::string color_rule;  ///< "" = the default; any|nearest: SixDofSettings::cost.color_rule
-  int local_candidates = -1, local_sweep = -1, dedupe = -1,
-      local_select = -1;  ///< >= 0: SixDofSettings overrides
+  int local_candidates = -1, local_sweep = -1, dedupe = -1, final_stride = -1,
+      placed_only = -1;  ///< >= 0: SixDofSettings overrides (local.turns, scene.local_search_placed_only)
+  float geometry_tolerance = -1;  ///< >= 0: SixDofSettings::local.turns.geometry_tolerance
   int warmup = -1,
       iterations = -1;     ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
   int fit = -1;            ///< >= 0: SixDofSettings::fit.iterations
@@ -74,8 +75,8 @@ constexpr const char* kUsage =
     "bench_sixdof [--scenes N] [--seed S] [--only A-B] [--masks gt|det|none|both] [--backend "
     "cpu|thrust_omp|both]\n"
     "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]\n"
-    "             [--local N] [--sweep N] [--dedupe 0|1] [--local-select 0|1] [--fit N]\n"
-    "             [--target-stride N]";
+    "             [--local N] [--sweep N] [--final-stride N] [--geometry-tolerance X] [--placed-only 0|1]\n"
+    "             [--dedupe 0|1] [--fit N] [--target-stride N]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -109,11 +110,16 @@ Options parse(int argc, char** argv) {
     } else if (a == "--color-rule") {
       if (v != "any" && v != "nearest") throw InvalidInput("--color-rule", "must be any or nearest");
       o.color_rule = v;
-    } else if (a == "--local" || a == "--sweep" || a == "--dedupe" || a == "--local-select") {
-      (a == "--local"    ? o.local_candidates
-       : a == "--sweep"  ? o.local_sweep
-       : a == "--dedupe" ? o.dedupe
-                         : o.local_select) = std::stoi(v);
+    } else if (a == "--local" || a == "--sweep" || a == "--dedupe" || a == "--final-stride" ||
+               a == "--placed-only") {
+      (a == "--local"          ? o.local_candidates
+       : a == "--sweep"        ? o.local_sweep
+       : a == "--dedupe"       ? o.dedupe
+       : a == "--final-stride" ? o.final_stride
+                               : o.placed_only) = std::stoi(v);
+    } else if (a == "--geometry-tolerance") {
+      o.geometry_tolerance = std::stof(v);
+      if (!(o.geometry_tolerance >= 0)) throw InvalidInput("--geometry-tolerance", "must be >= 0");
     } else if (a == "--warmup" || a == "--iterations" || a == "--fit") {
       (a == "--warmup" ? o.warmup : a == "--fit" ? o.fit : o.iterations) = std::stoi(v);
     } else if (a == "--target-stride") {
@@ -163,11 +169,13 @@ std::string child_overrides(const Options& o) {
                                              {"--local", o.local_candidates},
                                              {"--sweep", o.local_sweep},
                                              {"--dedupe", o.dedupe},
-                                             {"--local-select", o.local_select},
+                                             {"--final-stride", o.final_stride},
+                                             {"--placed-only", o.placed_only},
                                              {"--fit", o.fit},
                                              {"--target-stride", o.target_stride}};
   for (const auto& [flag, v] : all)
     if (v >= 0) out += std::string(" ") + flag + " " + std::to_string(v);
+  if (o.geometry_tolerance >= 0) out += " --geometry-tolerance " + std::to_string(o.geometry_tolerance);
   return out;
 }
 
@@ -176,7 +184,8 @@ std::string config_dir(const Options& o, const std::string& masks, dataset::Back
 }
 
 /// Child: one configuration over scenes [first, last]; per scene SSSSSS.csv and SSSSSS.times (observed
-/// proposals render refine cost select total cpu hypotheses chunk_peak_mib rss_peak_mib load instances).
+/// proposals render refine cost select total cpu hypotheses chunk_peak_mib rss_peak_mib load instances local
+/// explain fit; local and explain are parts of the other stages' wall time, fit of render + cost's).
 template <class Backend>
 void run(const Options& o, const std::string& masks, const std::string& out_dir) {
   const dataset::BopDataset data(o.dir + "/dataset");
@@ -190,9 +199,11 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
     settings.cost.color_rule = o.color_rule == "any" ? ColorRule::AnyNeighbour : ColorRule::Nearest;
   if (o.warmup >= 0) settings.gicp.icp_warmup_iterations = o.warmup;
   if (o.local_candidates >= 0) settings.local.candidates_per_instance = o.local_candidates;
-  if (o.local_sweep >= 0) settings.local.sweep_turns = o.local_sweep;
+  if (o.local_sweep >= 0) settings.local.turns.sweep_turns = o.local_sweep;
+  if (o.final_stride >= 0) settings.local.turns.final_stride = o.final_stride;
+  if (o.geometry_tolerance >= 0) settings.local.turns.geometry_tolerance = o.geometry_tolerance;
+  if (o.placed_only >= 0) settings.scene.local_search_placed_only = o.placed_only != 0;
   if (o.dedupe >= 0) settings.dedupe_after_warmup = o.dedupe != 0;
-  if (o.local_select >= 0) settings.local.select_by_local_cost = o.local_select != 0;
   if (o.iterations >= 0) settings.gicp.max_iterations = o.iterations;
   if (o.fit >= 0) settings.fit.iterations = o.fit;
   if (o.target_stride >= 1) settings.first_pass_target_stride = o.target_stride;
@@ -247,7 +258,8 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
                                    << ' ' << t.cost << ' ' << t.select << ' ' << t.total << ' ' << cpu << ' '
                                    << r.hypotheses_total << ' ' << double(r.peak_chunk_bytes) / 1048576.0
                                    << ' ' << double(bench::status_kb("VmHWM")) / 1024.0 << ' '
-                                   << 0.5 * (load_before + bench::load_average()) << ' ' << instances << '\n';
+                                   << 0.5 * (load_before + bench::load_average()) << ' ' << instances << ' '
+                                   << t.local << ' ' << t.explain << ' ' << t.fit << '\n';
     wall += t.total;
     ++done;  // before the call: its arguments' evaluation order is unspecified
     cli::print_progress(stderr, done, int(images.size()), wall / done, t.total);
@@ -257,7 +269,7 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
 struct Totals {
   int scenes = 0;
   double observed = 0, proposals = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0, cpu = 0;
-  double hypotheses = 0, chunk_mib = 0, rss_mib = 0, load = 0, instances = 0;
+  double hypotheses = 0, chunk_mib = 0, rss_mib = 0, load = 0, instances = 0, local = 0, explain = 0, fit = 0;
 };
 
 struct Row {
@@ -284,6 +296,9 @@ Row evaluate(const Options& o, const std::string& name, const std::string& dir) 
     t.select += v[5], t.total += v[6], t.cpu += v[7], t.hypotheses += v[8];
     t.chunk_mib = std::max(t.chunk_mib, v[9]), t.rss_mib = std::max(t.rss_mib, v[10]);
     t.load += v[11], t.instances += v[12], ++t.scenes;
+    double parts[3] = {0, 0, 0};  // local, explain, fit (absent in older runs' files)
+    for (double& x : parts) f >> x;
+    t.local += parts[0], t.explain += parts[1], t.fit += parts[2];
     const auto rows = dataset::load_results_csv(csv.string());
     estimates.insert(estimates.end(), rows.begin(), rows.end());
     scenes.insert(std::stoi(e.path().stem().string()));
@@ -343,17 +358,21 @@ void print_tables(const std::vector<Row>& rows) {
     });
   line("all", [](const Row& r) { return &r.report.overall; });
 
-  std::printf("\nmean per scene: stage wall seconds, process CPU seconds, hypotheses; peak memory\n");
-  std::printf("%-16s %6s %5s %7s %7s %7s %7s %7s %7s %7s %7s %6s %8s %8s %6s\n", "config", "scenes", "inst",
-              "observ", "propos", "render", "refine", "cost", "select", "total", "CPU s", "hyp", "RSS MiB",
-              "chunk MiB", "load");
+  std::printf(
+      "\nmean per scene: stage wall seconds (local, explain: parts of the stages before), process CPU "
+      "seconds, hypotheses; peak memory\n");
+  std::printf("%-16s %6s %5s %7s %7s %7s %7s %7s %7s %7s %7s %7s %7s %6s %8s %8s %6s\n", "config", "scenes",
+              "inst", "observ", "propos", "render", "refine", "cost", "select", "local", "explain", "total",
+              "CPU s", "hyp", "RSS MiB", "chunk MiB", "load");
   for (const Row& r : rows) {
     const Totals& t = r.t;
     const double n = std::max(t.scenes, 1);
-    std::printf("%-16s %6d %5.1f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.2f %6.0f %8.0f %8.1f %6.2f\n",
-                r.name.c_str(), t.scenes, t.instances / n, t.observed / n, t.proposals / n, t.render / n,
-                t.refine / n, t.cost / n, t.select / n, t.total / n, t.cpu / n, t.hypotheses / n, t.rss_mib,
-                t.chunk_mib, t.load / n);
+    std::printf(
+        "%-16s %6d %5.1f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.2f %6.0f %8.0f %8.1f "
+        "%6.2f\n",
+        r.name.c_str(), t.scenes, t.instances / n, t.observed / n, t.proposals / n, t.render / n,
+        t.refine / n, t.cost / n, t.select / n, t.local / n, t.explain / n, t.total / n, t.cpu / n,
+        t.hypotheses / n, t.rss_mib, t.chunk_mib, t.load / n);
   }
 }
 

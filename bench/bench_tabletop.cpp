@@ -11,11 +11,12 @@
 //                       [--backend cpu|thrust_omp|both (both)] [--dir SCRATCH (/tmp/perch2_bench_tabletop)]
 //                       [--dataset BOP_DIR (instead of generating: e.g. `perch2 generate --seed 77`'s)]
 //                       [--yaw-search 0|1 (1; TabletopSettings::yaw_search.enabled of the RGB-D variants)]
-//                       [--yaw-sweep N] [--yaw-step RAD] [--yaw-levels N] [--yaw-shift M] [--yaw-stride S]
-//                       [--yaw-tau T] [--yaw-starts N] [--yaw-sweep-stride S] [--yaw-moves N]
-//                       (yaw_search.turns.sweep_turns, .rotation_step_rad, .levels, translation_step_m,
-//                       stride, cost.tau_c, turns.sweep_starts, sweep_stride, turns.moves_per_level;
-//                       default: the library's)
+//                       [--yaw-sweep N] [--yaw-fine N] [--yaw-step RAD] [--yaw-levels N] [--yaw-tolerance X]
+//                       [--yaw-starts N] [--yaw-sweep-stride S] [--yaw-fine-stride S]
+//                       [--yaw-final-stride S] [--yaw-moves N]
+//                       (yaw_search.turns.sweep_turns, .fine_turns, .climb_step_rad, .levels,
+//                       .geometry_tolerance, .starts, .sweep_stride, .fine_stride, .final_stride,
+//                       .moves_per_level; default: the library's)
 #include <omp.h>
 
 #include <cstdio>
@@ -76,18 +77,20 @@ Options parse(int argc, char** argv) {
     } else if (a == "--yaw-search") {
       if (v != "0" && v != "1") throw InvalidInput("--yaw-search", "must be 0 or 1, not '" + v + "'");
       o.yaw_search = v == "1";
-    } else if (a == "--yaw-sweep" || a == "--yaw-step" || a == "--yaw-levels" || a == "--yaw-shift" ||
-               a == "--yaw-stride" || a == "--yaw-tau" || a == "--yaw-starts" || a == "--yaw-sweep-stride" ||
-               a == "--yaw-moves") {
-      if (a == "--yaw-sweep") o.yaw.turns.sweep_turns = std::stoi(v);
-      if (a == "--yaw-step") o.yaw.turns.rotation_step_rad = std::stof(v);
-      if (a == "--yaw-levels") o.yaw.turns.levels = std::stoi(v);
-      if (a == "--yaw-shift") o.yaw.translation_step_m = std::stof(v);
-      if (a == "--yaw-stride") o.yaw.stride = std::stoi(v);
-      if (a == "--yaw-tau") o.yaw.cost.tau_c = std::stof(v);
-      if (a == "--yaw-starts") o.yaw.turns.sweep_starts = std::stoi(v);
-      if (a == "--yaw-sweep-stride") o.yaw.sweep_stride = std::stoi(v);
-      if (a == "--yaw-moves") o.yaw.turns.moves_per_level = std::stoi(v);
+    } else if (a == "--yaw-sweep" || a == "--yaw-step" || a == "--yaw-levels" || a == "--yaw-tolerance" ||
+               a == "--yaw-starts" || a == "--yaw-sweep-stride" || a == "--yaw-fine-stride" ||
+               a == "--yaw-final-stride" || a == "--yaw-moves" || a == "--yaw-fine") {
+      TurnSearchSettings& t = o.yaw.turns;
+      if (a == "--yaw-sweep") t.sweep_turns = std::stoi(v);
+      if (a == "--yaw-fine") t.fine_turns = std::stoi(v);
+      if (a == "--yaw-step") t.climb_step_rad = std::stof(v);
+      if (a == "--yaw-levels") t.levels = std::stoi(v);
+      if (a == "--yaw-tolerance") t.geometry_tolerance = std::stof(v);
+      if (a == "--yaw-starts") t.starts = std::stoi(v);
+      if (a == "--yaw-sweep-stride") t.sweep_stride = std::stoi(v);
+      if (a == "--yaw-fine-stride") t.fine_stride = std::stoi(v);
+      if (a == "--yaw-final-stride") t.final_stride = std::stoi(v);
+      if (a == "--yaw-moves") t.moves_per_level = std::stoi(v);
       o.yaw_args += " " + a + " " + v;
     } else if (a != "--variants" && a != "--backend") {
       throw InvalidInput(a,

@@ -113,7 +113,6 @@ SixDofSettings test_settings() {
   s.gicp.icp_warmup_iterations = 10;
   s.gicp.max_iterations = 12;
   s.second_pass_iterations = 8;
-  s.local.stride = 2;
   return s;
 }
 

@@ -744,24 +744,22 @@ TEST_CASE("the yaw search's bad settings are rejected naming the setting") {
     edit(s);
     return TabletopEstimator<cpu::Backend>(g.tabletop_models, s).estimate(g.frame, {{0, 1}}, g.T_cam_world);
   };
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.rotation_step_rad = 0.f; }),
-                       doctest::Contains("yaw_search.turns.rotation_step_rad"), InvalidInput);
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.rotation_step_rad = NAN; }),
-                       doctest::Contains("yaw_search.turns.rotation_step_rad"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.climb_step_rad = 0.f; }),
+                       doctest::Contains("yaw_search.turns.climb_step_rad"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.climb_step_rad = NAN; }),
+                       doctest::Contains("yaw_search.turns.climb_step_rad"), InvalidInput);
   CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.levels = -1; }),
                        doctest::Contains("yaw_search.turns"), InvalidInput);
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.sweep_turns = -1; }),
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.sweep_turns = 2; }),
+                       doctest::Contains("yaw_search.turns.sweep_turns"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.fine_stride = 0; }),
                        doctest::Contains("yaw_search.turns"), InvalidInput);
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.stride = 0; }),
-                       doctest::Contains("yaw_search.stride"), InvalidInput);
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.sweep_stride = 0; }),
-                       doctest::Contains("yaw_search.sweep_stride"), InvalidInput);
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.sweep_starts = 0; }),
-                       doctest::Contains("yaw_search.turns.sweep_starts"), InvalidInput);
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.translation_step_m = -0.001f; }),
-                       doctest::Contains("yaw_search.translation_step_m"), InvalidInput);
-  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.translation_step_m = INFINITY; }),
-                       doctest::Contains("yaw_search.translation_step_m"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.starts = 0; }),
+                       doctest::Contains("yaw_search.turns.starts"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.climb_shift_m = -0.001f; }),
+                       doctest::Contains("yaw_search.turns.climb_shift_m"), InvalidInput);
+  CHECK_THROWS_WITH_AS(run([](TabletopSettings& s) { s.yaw_search.turns.climb_shift_m = INFINITY; }),
+                       doctest::Contains("yaw_search.turns.climb_shift_m"), InvalidInput);
   // The depth-only cost without a colour image: the yaw search needs colour unless it is off.
   RgbdFrame grey = g.frame;
   grey.rgb = ColorImage();

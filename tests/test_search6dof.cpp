@@ -106,7 +106,6 @@ SixDofSettings test_settings() {
   s.gicp.icp_warmup_iterations = 10;
   s.gicp.max_iterations = 12;
   s.second_pass_iterations = 8;
-  s.local.stride = 2;
   return s;
 }
 
@@ -465,11 +464,6 @@ TEST_CASE("6-DoF: the local search recovers a printed can's turn about its axis,
   SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
   const SixDofResult off = estimator.estimate(s.rgbd, s.instances);
   estimator.settings().local = LocalSearchSettings{};
-  estimator.settings().local.stride = 2;
-  // The winner by the local search's own (nearest-colour) cost: on this scene the final cost
-  // (AnyNeighbour, the default selection) cannot tell the searched turns of the can apart and keeps a
-  // wrong one (measured: 50 mm ADD).
-  estimator.settings().local.select_by_local_cost = true;
   const SixDofResult on = estimator.estimate(s.rgbd, s.instances);
   CHECK(on.local_candidates > 0);
   for (std::size_t k = 0; k < s.instances.size(); ++k) {
@@ -538,11 +532,11 @@ TEST_CASE("6-DoF: after the ICP warm-up only distinct poses go on to GICP") {
 
 TEST_CASE("6-DoF: bad local-search settings raise clear errors") {
   const Scene6 s = make_scene(3, {0, 5, 7});
-  for (auto bad :
-       {+[](SixDofSettings& b) { b.local.candidates_per_instance = -1; },
-        +[](SixDofSettings& b) { b.local.rotation_step_rad = 0; },
-        +[](SixDofSettings& b) { b.local.rotation_step_rad = NAN; },
-        +[](SixDofSettings& b) { b.local.levels = -1; }, +[](SixDofSettings& b) { b.local.stride = 0; }}) {
+  for (auto bad : {+[](SixDofSettings& b) { b.local.candidates_per_instance = -1; },
+                   +[](SixDofSettings& b) { b.local.turns.climb_step_rad = 0; },
+                   +[](SixDofSettings& b) { b.local.turns.geometry_tolerance = NAN; },
+                   +[](SixDofSettings& b) { b.local.turns.levels = -1; },
+                   +[](SixDofSettings& b) { b.local.turns.final_stride = 0; }}) {
     SixDofSettings b = test_settings();
     b.proposals.viewpoints = 2, b.proposals.inplane_rotations = 1, b.proposals.max_depths = 1;
     bad(b);

@@ -222,23 +222,24 @@ void bind_estimators(nb::module_& m) {
       .value("DepthOnlyC", SearchVariant::DepthOnlyC)
       .value("BfIcp", SearchVariant::BfIcp);
 
-  nb::class_<TurnSchedule> turns(m, "TurnSchedule", doc("TurnSchedule"));
+  nb::class_<TurnSearchSettings> turns(m, "TurnSearchSettings", doc("TurnSearchSettings"));
   turns.def(nb::init<>());
-  PERCH2_RW(turns, TurnSchedule, rotation_step_rad);
-  PERCH2_RW(turns, TurnSchedule, levels);
-  PERCH2_RW(turns, TurnSchedule, moves_per_level);
-  PERCH2_RW(turns, TurnSchedule, sweep_turns);
-  PERCH2_RW(turns, TurnSchedule, sweep_starts);
-  PERCH2_RW(turns, TurnSchedule, require_both_terms);
+  PERCH2_RW(turns, TurnSearchSettings, sweep_turns);
+  PERCH2_RW(turns, TurnSearchSettings, sweep_stride);
+  PERCH2_RW(turns, TurnSearchSettings, geometry_tolerance);
+  PERCH2_RW(turns, TurnSearchSettings, fine_turns);
+  PERCH2_RW(turns, TurnSearchSettings, fine_stride);
+  PERCH2_RW(turns, TurnSearchSettings, starts);
+  PERCH2_RW(turns, TurnSearchSettings, climb_step_rad);
+  PERCH2_RW(turns, TurnSearchSettings, climb_shift_m);
+  PERCH2_RW(turns, TurnSearchSettings, levels);
+  PERCH2_RW(turns, TurnSearchSettings, moves_per_level);
+  PERCH2_RW(turns, TurnSearchSettings, final_stride);
 
   nb::class_<YawSearchSettings> ys(m, "YawSearchSettings", doc("YawSearchSettings"));
   ys.def(nb::init<>());
   PERCH2_RW(ys, YawSearchSettings, enabled);
   PERCH2_RW(ys, YawSearchSettings, turns);
-  PERCH2_RW(ys, YawSearchSettings, translation_step_m);
-  PERCH2_RW(ys, YawSearchSettings, stride);
-  PERCH2_RW(ys, YawSearchSettings, sweep_stride);
-  PERCH2_RW(ys, YawSearchSettings, cost);
 
   nb::class_<TabletopSettings> ts(m, "TabletopSettings", doc("TabletopSettings"));
   ts.def(nb::init<>());
@@ -506,15 +507,8 @@ void bind_estimators(nb::module_& m) {
   nb::class_<LocalSearchSettings> ls(m, "LocalSearchSettings", doc("LocalSearchSettings"));
   ls.def(nb::init<>());
   PERCH2_RW(ls, LocalSearchSettings, candidates_per_instance);
-  PERCH2_RW(ls, LocalSearchSettings, rotation_step_rad);
-  PERCH2_RW(ls, LocalSearchSettings, levels);
-  PERCH2_RW(ls, LocalSearchSettings, moves_per_level);
-  PERCH2_RW(ls, LocalSearchSettings, stride);
-  PERCH2_RW(ls, LocalSearchSettings, sweep_turns);
-  PERCH2_RW(ls, LocalSearchSettings, require_both_terms);
+  PERCH2_RW(ls, LocalSearchSettings, turns);
   PERCH2_RW(ls, LocalSearchSettings, polish);
-  PERCH2_RW(ls, LocalSearchSettings, select_by_local_cost);
-  PERCH2_RW(ls, LocalSearchSettings, cost);
 
   nb::class_<SurfaceFitSettings> fs(m, "SurfaceFitSettings", doc("SurfaceFitSettings"));
   fs.def(nb::init<>());
@@ -611,6 +605,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, colour_samples);
   PERCH2_RW(scs, SceneSettings, residual_pass);
   PERCH2_RW(scs, SceneSettings, refine_after_placing);
+  PERCH2_RW(scs, SceneSettings, local_search_placed_only);
 
   nb::class_<FrameSegment> fseg(m, "FrameSegment", doc("FrameSegment"));
   PERCH2_RO(fseg, FrameSegment, label);
@@ -727,7 +722,7 @@ void bind_estimators(nb::module_& m) {
       "are\n"
       "copied once (masks too).");
   nb::class_<PySixDof> sixdof(m, "SixDofEstimator", sixdof_doc.c_str());
-  estimator_accessors<SixDofSettings>(sixdof, "settings.local.cost.delta_m");
+  estimator_accessors<SixDofSettings>(sixdof, "settings.local.turns.final_stride");
   sixdof
       .def(
           "__init__",

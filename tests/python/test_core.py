@@ -175,10 +175,11 @@ def test_unknown_and_unbuilt_backends_raise_invalid_input():
 def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     s = perch2.SixDofSettings()
     assert s.render.stride == 8 and s.gicp.icp_warmup_iterations == 8  # the C++ lambdas' values
-    assert s.local.cost.color_rule == perch2.ColorRule.Nearest
+    assert s.local.turns.fine_turns == 144 and s.local.turns.climb_shift_m == 0.0  # 6-DoF: no shifts
     assert s.first_pass_target_stride == 4 and perch2.SixDofSettings.first_pass_target_stride.__doc__
-    s.local.cost.delta_m = 0.02
-    assert s.local.cost.delta_m == pytest.approx(0.02)  # nested settings are references, not copies
+    s.local.turns.geometry_tolerance = 0.05
+    assert s.local.turns.geometry_tolerance == pytest.approx(0.05)  # nested settings are references, not copies
+    assert s.scene.local_search_placed_only
     s.gicp.lm.lambda_up = 7.0
     assert s.gicp.lm.lambda_up == 7.0
     t = perch2.TabletopSettings()
@@ -190,8 +191,9 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     t.icp.up_cam = [0.0, 0.0, 1.0]
     np.testing.assert_array_equal(t.icp.up_cam, [0, 0, 1])
     # the 3-DoF yaw search and the 6-DoF final surface fit, defaults from their C++ structs
-    assert t.yaw_search.enabled and t.yaw_search.turns.sweep_turns == 72 and t.yaw_search.turns.sweep_starts == 1
-    assert t.yaw_search.cost.color_rule == perch2.ColorRule.Nearest
+    assert t.yaw_search.enabled and t.yaw_search.turns.sweep_turns == 36 and t.yaw_search.turns.final_stride == 1
+    assert t.yaw_search.turns.climb_shift_m == pytest.approx(0.001)
+    assert perch2.TurnSearchSettings.geometry_tolerance.__doc__
     t.yaw_search.enabled = False
     assert not t.yaw_search.enabled
     assert s.fit.iterations == 20 and s.fit_stride == 1 and s.fit_cost_slack == pytest.approx(0.01)

@@ -60,6 +60,7 @@
 #include "perch2/core/mesh.hpp"
 #include "perch2/core/observed.hpp"
 #include "perch2/core/pose.hpp"
+#include "perch2/cost/appearance.hpp"
 #include "perch2/cost/cost.hpp"
 #include "perch2/registration/registration.hpp"
 #include "perch2/render/render.hpp"
@@ -112,45 +113,19 @@ inline const char* to_string(SearchVariant v) {
   return "?";
 }
 
-/// The yaw search after selection (see the file comment). ICP aligns what the depth shows; a printed can or
-/// bottle turned about its axis shows the same depth, so its yaw stays near the grid yaw it started from
-/// (yaw_step_rad apart), and the final cost's colour test (ColorRule::AnyNeighbour) tolerates a label a few
-/// millimetres off by design. Here each selected pose is turned about the table normal through its
-/// placement origin (and shifted in x, y) and scored with the nearest-neighbour colour test, which sees
-/// that misalignment; a move is taken only if it lowers both cost terms (turns.require_both_terms).
-/// Models a turn cannot change in colour keep their pose: single-coloured ones (their yaw is the
-/// geometry's, ICP's) and untextured ones declared yaw-symmetric (TabletopModel::yaw_symmetric).
+/// The yaw search after selection (see the file comment and perch2/search/local_search.hpp). ICP aligns what
+/// the depth shows; a printed can or bottle turned about its axis shows the same depth, so its yaw stays
+/// near the grid yaw it started from (yaw_step_rad apart), and the final cost's colour test
+/// (ColorRule::AnyNeighbour) tolerates a label a few millimetres off by design. Here each selected pose is
+/// turned about the table normal through its placement origin: the turns whose depth-only cost (J_r + J_o
+/// as fractions, the cost's delta) stays within turns.geometry_tolerance are the look-alikes (every turn of
+/// a can, a box's half turn), and among them the print decides, by the correlation of rendered and
+/// observed colours (perch2/cost/appearance.hpp). Models a turn cannot change in colour keep their pose:
+/// single-coloured ones (their yaw is the geometry's, ICP's) and untextured ones declared yaw-symmetric
+/// (TabletopModel::yaw_symmetric).
 struct YawSearchSettings {
-  bool enabled = true;  ///< false: the selected yaws are returned as they are (the paper's search)
-  /// Sweep: 72 turns 5 deg apart (the nearest-colour cost's basin about the right yaw is only ~5 deg
-  /// wide on a 10 cm label seen at 1 m, and a label can be seen from the wrong side), then turns of
-  /// +-0.04 rad halving over 3 levels (down to 0.01 rad, ~0.6 deg), climbed from the sweep's best turn.
-  /// sweep_starts = 3 (climbs also from the sweep's next best 2) helped a bottle whose label and back
-  /// differ in a few letters on one generated set, but lost on the other and ended a printed can 74 deg
-  /// off in tests/test_search3dof.cpp: the climbs' ends are compared at `stride` while the sweep ranks at
-  /// sweep_stride, so 1 it is until they agree.
-  TurnSchedule turns = [] {
-    TurnSchedule t;
-    t.rotation_step_rad = 0.04f;
-    t.levels = 3;
-    t.moves_per_level = 3;
-    t.sweep_turns = 72;
-    t.sweep_starts = 1;
-    return t;
-  }();
-  /// The levels also move each pose by +-translation_step_m in x and y (halving with the turn step): the
-  /// colour test sees a label a millimetre off, which is about what ICP leaves. 0: turns only (>= 0).
-  float translation_step_m = 0.001f;
-  int stride = 2;  ///< render stride of the turned poses (>= 1)
-  /// Render stride of the sweep's turns, which only rank each other to choose the climbs' starts
-  /// (turns.sweep_starts > 1; >= 1): a quarter of the points at 4.
-  int sweep_stride = 4;
-  /// The colour test of the nearest neighbour (ColorRule::Nearest) sees what AnyNeighbour tolerates.
-  CostSettings cost = [] {
-    CostSettings c;
-    c.color_rule = ColorRule::Nearest;
-    return c;
-  }();
+  bool enabled = true;       ///< false: the selected yaws are returned as they are (the paper's search)
+  TurnSearchSettings turns;  ///< sweep, climb and final comparison (local_search.hpp)
 };
 
 struct TabletopSettings {
@@ -587,19 +562,14 @@ class TabletopEstimator {
     if (!(s.support_margin_m >= 0) || !(s.workspace_margin_m >= 0) || !(s.overlap_tolerance_m >= 0))
       throw InvalidInput("TabletopSettings", "margins and tolerances must be >= 0");
     perch2::validate(s.yaw_search.turns, "TabletopSettings::yaw_search.turns");
-    if (s.yaw_search.stride < 1) throw InvalidInput("TabletopSettings::yaw_search.stride", "must be >= 1");
-    if (s.yaw_search.sweep_stride < 1)
-      throw InvalidInput("TabletopSettings::yaw_search.sweep_stride", "must be >= 1");
-    if (!(s.yaw_search.translation_step_m >= 0 && std::isfinite(s.yaw_search.translation_step_m)))
-      throw InvalidInput("TabletopSettings::yaw_search.translation_step_m", "must be finite and >= 0");
     frame.validate("tabletop frame");
     if (s.cost.use_color && s.mode != SearchMode::BruteForceIcp && frame.rgb.empty())
       throw InvalidInput("tabletop frame",
                          "has no colour image, which the RGB-D cost needs (set "
                          "cost.use_color = false for the depth-only cost)");
-    if (yaw_search_runs() && s.yaw_search.cost.use_color && frame.rgb.empty())
+    if (yaw_search_runs() && frame.rgb.empty())
       throw InvalidInput("tabletop frame",
-                         "has no colour image, which the yaw search's colour test needs (set "
+                         "has no colour image, which the yaw search's appearance test needs (set "
                          "yaw_search.enabled = false)");
     if (objects.empty()) throw InvalidInput("objects", "no objects requested");
     for (std::size_t i = 0; i < objects.size(); ++i) {
@@ -815,25 +785,30 @@ class TabletopEstimator {
     const Occluders occluders{f.rgbd.depth_m, {}};
     const Occluders* occ = settings_.occluder_marking ? &occluders : nullptr;
     const std::vector<Candidate> start = cands;
-    // Axis 0: a turn about the table normal; 1, 2: a shift in x, y of translation_step_m per first step.
-    const float metres_per_rad = ys.translation_step_m / ys.turns.rotation_step_rad;
-    auto turn = [&](Candidate c, int axis, float angle_rad) {
-      if (axis == 0)
-        c.yaw = std::remainder(c.yaw + angle_rad, kTwoPi);
-      else
-        (axis == 1 ? c.x : c.y) += angle_rad * metres_per_rad;
+    auto turn = [&](Candidate c, int, float angle_rad) {  // about the table normal
+      c.yaw = std::remainder(c.yaw + angle_rad, kTwoPi);
       return c;
     };
-    auto costs_at = [&](const std::vector<Candidate>& c, int stride) {
-      return score(f, c, render(f, c, stride, occ, result.timings), ys.cost, result.timings);
+    CostSettings depth_only = settings_.cost;
+    depth_only.use_color = false;
+    depth_only.normalization = Normalization::Fractions;
+    auto measure = [&](const std::vector<Candidate>& c, int stride, bool geometry) {
+      const CloudBatch rendered = render(f, c, stride, occ, result.timings);
+      const std::vector<CostBreakdown> g =
+          geometry ? score(f, c, rendered, depth_only, result.timings) : std::vector<CostBreakdown>(c.size());
+      const auto t_app = Clock::now();
+      std::vector<AppearanceSamples> a = appearance_samples(rendered, f.rgbd, depth_only.delta_m);
+      result.timings.cost += seconds_since(t_app);
+      std::vector<TurnSample> out;
+      for (std::size_t i = 0; i < c.size(); ++i) out.push_back({g[i].total, std::move(a[i])});
+      return out;
     };
-    auto cost = [&](const std::vector<Candidate>& c) { return costs_at(c, ys.stride); };
-    const int axes = ys.translation_step_m > 0 ? 3 : 1;
-    auto sweep_cost = [&](const std::vector<Candidate>& c) { return costs_at(c, ys.sweep_stride); };
-    if (!cands.empty() && ys.turns.sweep_turns > 1 && ys.turns.sweep_starts > 1)
-      climb_from_sweep_starts(cands, axes, 1, ys.turns, turn, cost, sweep_cost, &result.yaw_candidates);
-    else if (!cands.empty())
-      climb_turns(cands, axes, 1, ys.turns, turn, cost, &result.yaw_candidates);
+    auto shift = [](Candidate c, int axis, float m) {  // along the table's x or y
+      (axis == 0 ? c.x : c.y) += m;
+      return c;
+    };
+    if (!cands.empty())
+      search_turns(cands, 1, 2, f.rgbd.camera.width, ys.turns, turn, shift, measure, &result.yaw_candidates);
     std::vector<Candidate> moved;
     std::vector<std::size_t> moved_pose;
     for (std::size_t i = 0; i < cands.size(); ++i)
