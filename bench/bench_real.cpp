@@ -7,17 +7,20 @@
 //        its own seeded stream), boxes from the degraded masks, written to SCRATCH/detections_degraded.json
 //        (usable with `perch2 estimate --masks FILE`).
 // The peer (when OpenCV's surface_matching module is found at configure time): PPF3DDetector(0.025, 0.05)
-// trained once on the model's vertices with area-weighted vertex normals; per instance, the mask's readings
-// (every pixel) with normals from computeNormalsPC3d (6 neighbours, oriented to the camera), match(1/40,
-// 0.05), then ICP(100, 0.005, 2.5, 8) on the best 5 poses (OpenCV's ppf_load_match sample settings), the
-// lowest residual taken. Depth only.
+// trained once on the model's vertices (area-weighted vertex normals) thinned to 0.025 x the diameter apart
+// (see train_ppf); per instance, the mask's readings (every pixel) with normals from computeNormalsPC3d
+// (6 neighbours, oriented to the camera), match(1/40, 0.05), then ICP(100, 0.005, 2.5, 8) of every vertex
+// on the best 5 poses (OpenCV's ppf_load_match sample settings), the lowest residual taken. Millimetres,
+// depth only.
 // Usage: bench_real [--dataset DIR] [--dir SCRATCH (/tmp/perch2_bench_real)] [--seed S (1)]
 //   [--masks gt|det|both] [--backend cpu|thrust_omp (thrust_omp)] [--peer 0|1 (1)] [--perch2 0|1 (1)]
 //   [--fit N (SixDofSettings::fit.iterations; 0 = no final fit)]
 //   [--target-stride N (SixDofSettings::first_pass_target_stride)]
 #include <omp.h>
 
+#include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
@@ -174,7 +177,14 @@ std::vector<dataset::PoseEstimate> run_perch2(const Options& o, const dataset::B
 }
 
 #ifdef PERCH2_HAVE_PPF
-/// The model's vertices (metres) with area-weighted vertex normals, as OpenCV's N x 6 point cloud.
+// Millimetres, the model file's and the sample's units: the pose clustering in match() merges poses whose
+// translations lie within the relative sampling step taken as an absolute distance (setSearchParams'
+// default) whatever their rotations, and averages them; 0.025 mm leaves the poses apart as in the sample,
+// 0.025 m would average a cat's flipped and upright poses.
+constexpr float kPpfUnit = 1000.f;
+constexpr double kPpfSampling = 0.025;  // PPF3DDetector(0.025, 0.05), as in the sample
+
+/// The model's vertices (millimetres) with area-weighted vertex normals, as OpenCV's N x 6 point cloud.
 cv::Mat vertices_with_normals(const Mesh& mesh) {
   std::vector<Eigen::Vector3f> n(mesh.vertices.size(), Eigen::Vector3f::Zero());
   for (const auto& t : mesh.triangles) {
@@ -186,30 +196,64 @@ cv::Mat vertices_with_normals(const Mesh& mesh) {
   cv::Mat pc(int(mesh.vertices.size()), 6, CV_32F);
   for (int i = 0; i < pc.rows; ++i) {
     const Eigen::Vector3f v = mesh.vertices[std::size_t(i)], u = n[std::size_t(i)].normalized();
-    for (int k = 0; k < 3; ++k) pc.at<float>(i, k) = v[k], pc.at<float>(i, 3 + k) = u[k];
+    for (int k = 0; k < 3; ++k) pc.at<float>(i, k) = kPpfUnit * v[k], pc.at<float>(i, 3 + k) = u[k];
   }
   return pc;
+}
+
+/// The rows of `pc` kept greedily in order so that no two lie closer than `spacing` (a uniform surface
+/// sample when the rows are a fine mesh's vertices).
+cv::Mat thinned(const cv::Mat& pc, float spacing) {
+  std::map<std::array<int, 3>, std::vector<int>> grid;  // cells of side `spacing`
+  std::vector<int> kept;
+  for (int i = 0; i < pc.rows; ++i) {
+    const cv::Vec3f p(pc.ptr<float>(i));
+    const std::array<int, 3> c{int(std::floor(p[0] / spacing)), int(std::floor(p[1] / spacing)),
+                               int(std::floor(p[2] / spacing))};
+    bool free = true;
+    for (int dx = -1; dx <= 1 && free; ++dx)
+      for (int dy = -1; dy <= 1 && free; ++dy)
+        for (int dz = -1; dz <= 1 && free; ++dz) {
+          const auto it = grid.find({c[0] + dx, c[1] + dy, c[2] + dz});
+          if (it == grid.end()) continue;
+          for (const int j : it->second)
+            if (cv::norm(p - cv::Vec3f(pc.ptr<float>(j))) < spacing) free = false;
+        }
+    if (free) grid[c].push_back(i), kept.push_back(i);
+  }
+  cv::Mat out(int(kept.size()), pc.cols, CV_32F);
+  for (int r = 0; r < out.rows; ++r) pc.row(kept[std::size_t(r)]).copyTo(out.row(r));
+  return out;
 }
 
 /// OpenCV's PPF detectors, trained once per model (see the file comment), and the models' clouds for ICP.
 struct PpfModels {
   std::map<int, int> model_of;
-  std::map<int, cv::Mat> cloud;  // obj_id -> N x 6 (metres, unit normals)
+  std::map<int, cv::Mat> cloud;  // obj_id -> N x 6 (millimetres, unit normals): every vertex, for ICP
   std::map<int, std::unique_ptr<cv::ppf_match_3d::PPF3DDetector>> detector;
   double train_cpu_s = 0;
 };
 
+// Training gets the vertices thinned to kPpfSampling x the diameter apart, the spacing the setting names,
+// as the sample trains on a sampled cloud. Given every vertex, samplePCByQuantization cuts each side of
+// the bounding box into 1 / 0.025 = 40 cells (1.7-3.2 mm on the cat, finer than 0.025 x 154.5 mm) and keeps
+// 5749 of the cat's 15736 vertices; trainModel then hashes all 5749^2 pairs, and in OpenCV 4.6 each insert
+// walks the bucket's list of pairs with the same quantised feature (t_hash_int.cpp), so training grows
+// with the sum of those lists' squared lengths (1.2e11 steps here: hours, measured 90 s for 1516 points
+// and over 300 s for 2569). Thinned, 1252 remain and training takes seconds.
 PpfModels train_ppf(const dataset::BopDataset& data) {
   PpfModels m;
   for (const auto& [id, info] : data.models_info()) {
     m.model_of[id] = int(m.model_of.size());
     m.cloud[id] = vertices_with_normals(data.load_model(id));
     const std::clock_t c0 = std::clock();
-    m.detector[id] = std::make_unique<cv::ppf_match_3d::PPF3DDetector>(0.025, 0.05);
-    m.detector[id]->trainModel(m.cloud[id]);
+    const cv::Mat sampled = thinned(m.cloud[id], float(kPpfSampling) * kPpfUnit * info.diameter_m);
+    m.detector[id] = std::make_unique<cv::ppf_match_3d::PPF3DDetector>(kPpfSampling, 0.05);
+    m.detector[id]->trainModel(sampled);
     const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
     m.train_cpu_s += cpu;
-    std::fprintf(stderr, "PPF: trained obj %d (%d points) in %.1f CPU s\n", id, m.cloud[id].rows, cpu);
+    std::fprintf(stderr, "PPF: trained obj %d on %d of its %d vertices in %.1f CPU s\n", id, sampled.rows,
+                 m.cloud[id].rows, cpu);
   }
   return m;
 }
@@ -241,7 +285,7 @@ std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, cons
         for (int u = 0; u < f.camera.width; ++u)
           if (in.instances[k].mask(u, v) && f.depth_m(u, v) > 0) {
             const Vec3f p = f.depth_m(u, v) * f.camera.ray(float(u), float(v));
-            pts.push_back({p.x, p.y, p.z});
+            pts.push_back({kPpfUnit * p.x, kPpfUnit * p.y, kPpfUnit * p.z});
           }
       if (pts.size() < 10) continue;
       cv::Mat scene(int(pts.size()), 3, CV_32F, pts.data()), scene_n;
@@ -262,7 +306,7 @@ std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, cons
       Pose T = Pose::Identity();
       for (int r = 0; r < 3; ++r) {
         for (int c = 0; c < 3; ++c) T.linear()(r, c) = float(best->pose(r, c));
-        T.translation()[r] = float(best->pose(r, 3));
+        T.translation()[r] = float(best->pose(r, 3)) / kPpfUnit;
       }
       T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();
       e.T_cam_obj = T;
@@ -315,7 +359,7 @@ int main(int argc, char** argv) try {
   };
 #ifdef PERCH2_HAVE_PPF
   std::unique_ptr<PpfModels>
-      ppf_models;  // trained on first use (several CPU minutes), kept for every mask set
+      ppf_models;  // trained on first use (seconds, see train_ppf), kept for every mask set
 #endif
   for (const std::string& masks : o.masks) {
     if (o.perch2) {
