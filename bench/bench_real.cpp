@@ -7,17 +7,20 @@
 //        its own seeded stream), boxes from the degraded masks, written to SCRATCH/detections_degraded.json
 //        (usable with `perch2 estimate --masks FILE`).
 // The peer (when OpenCV's surface_matching module is found at configure time): PPF3DDetector(0.025, 0.05)
-// trained once on the model's vertices with area-weighted vertex normals; per instance, the mask's readings
-// (every pixel) with normals from computeNormalsPC3d (6 neighbours, oriented to the camera), match(1/40,
-// 0.05), then ICP(100, 0.005, 2.5, 8) on the best 5 poses (OpenCV's ppf_load_match sample settings), the
-// lowest residual taken. Depth only.
+// trained once on the model's vertices (area-weighted vertex normals) thinned to 0.025 x the diameter apart
+// (see train_ppf); per instance, the mask's readings (mask grown by 3 px) with computeNormalsPC3d normals
+// (30 neighbours, oriented to the camera), match(1/5, 0.05), ICP(100, 0.005, 2.5, 8) of the camera-facing
+// vertices on the 10 most voted poses, the pose with the largest fitness kept (see run_ppf). Millimetres,
+// depth only.
 // Usage: bench_real [--dataset DIR] [--dir SCRATCH (/tmp/perch2_bench_real)] [--seed S (1)]
 //   [--masks gt|det|both] [--backend cpu|thrust_omp (thrust_omp)] [--peer 0|1 (1)] [--perch2 0|1 (1)]
 //   [--fit N (SixDofSettings::fit.iterations; 0 = no final fit)]
 //   [--target-stride N (SixDofSettings::first_pass_target_stride)]
 #include <omp.h>
 
+#include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
@@ -28,6 +31,8 @@
 #include <vector>
 
 #ifdef PERCH2_HAVE_PPF
+#include <opencv2/flann.hpp>
+#include <opencv2/imgproc.hpp>
 #include <opencv2/surface_matching.hpp>
 #include <opencv2/surface_matching/ppf_helpers.hpp>
 #endif
@@ -174,7 +179,14 @@ std::vector<dataset::PoseEstimate> run_perch2(const Options& o, const dataset::B
 }
 
 #ifdef PERCH2_HAVE_PPF
-/// The model's vertices (metres) with area-weighted vertex normals, as OpenCV's N x 6 point cloud.
+// Millimetres, the model file's and the sample's units: the pose clustering in match() merges poses whose
+// translations lie within the relative sampling step taken as an absolute distance (setSearchParams'
+// default) whatever their rotations, and averages them; 0.025 mm leaves the poses apart as in the sample,
+// 0.025 m would average a cat's flipped and upright poses.
+constexpr float kPpfUnit = 1000.f;
+constexpr double kPpfSampling = 0.025;  // PPF3DDetector(0.025, 0.05), as in the sample
+
+/// The model's vertices (millimetres) with area-weighted vertex normals, as OpenCV's N x 6 point cloud.
 cv::Mat vertices_with_normals(const Mesh& mesh) {
   std::vector<Eigen::Vector3f> n(mesh.vertices.size(), Eigen::Vector3f::Zero());
   for (const auto& t : mesh.triangles) {
@@ -186,35 +198,102 @@ cv::Mat vertices_with_normals(const Mesh& mesh) {
   cv::Mat pc(int(mesh.vertices.size()), 6, CV_32F);
   for (int i = 0; i < pc.rows; ++i) {
     const Eigen::Vector3f v = mesh.vertices[std::size_t(i)], u = n[std::size_t(i)].normalized();
-    for (int k = 0; k < 3; ++k) pc.at<float>(i, k) = v[k], pc.at<float>(i, 3 + k) = u[k];
+    for (int k = 0; k < 3; ++k) pc.at<float>(i, k) = kPpfUnit * v[k], pc.at<float>(i, 3 + k) = u[k];
   }
   return pc;
+}
+
+/// The rows of `pc` kept greedily in order so that no two lie closer than `spacing` (a uniform surface
+/// sample when the rows are a fine mesh's vertices).
+cv::Mat thinned(const cv::Mat& pc, float spacing) {
+  std::map<std::array<int, 3>, std::vector<int>> grid;  // cells of side `spacing`
+  std::vector<int> kept;
+  for (int i = 0; i < pc.rows; ++i) {
+    const cv::Vec3f p(pc.ptr<float>(i));
+    const std::array<int, 3> c{int(std::floor(p[0] / spacing)), int(std::floor(p[1] / spacing)),
+                               int(std::floor(p[2] / spacing))};
+    bool free = true;
+    for (int dx = -1; dx <= 1 && free; ++dx)
+      for (int dy = -1; dy <= 1 && free; ++dy)
+        for (int dz = -1; dz <= 1 && free; ++dz) {
+          const auto it = grid.find({c[0] + dx, c[1] + dy, c[2] + dz});
+          if (it == grid.end()) continue;
+          for (const int j : it->second)
+            if (cv::norm(p - cv::Vec3f(pc.ptr<float>(j))) < spacing) free = false;
+        }
+    if (free) grid[c].push_back(i), kept.push_back(i);
+  }
+  cv::Mat out(int(kept.size()), pc.cols, CV_32F);
+  for (int r = 0; r < out.rows; ++r) pc.row(kept[std::size_t(r)]).copyTo(out.row(r));
+  return out;
 }
 
 /// OpenCV's PPF detectors, trained once per model (see the file comment), and the models' clouds for ICP.
 struct PpfModels {
   std::map<int, int> model_of;
-  std::map<int, cv::Mat> cloud;  // obj_id -> N x 6 (metres, unit normals)
+  std::map<int, cv::Mat> cloud;    // obj_id -> N x 6 (millimetres, unit normals): every vertex, for ICP
+  std::map<int, cv::Mat> sampled;  // obj_id -> the thinned cloud the detector was trained on
+  std::map<int, double> diameter_m;
   std::map<int, std::unique_ptr<cv::ppf_match_3d::PPF3DDetector>> detector;
   double train_cpu_s = 0;
 };
 
+// Training gets the vertices thinned to kPpfSampling x the diameter apart, the spacing the setting names,
+// as the sample trains on a sampled cloud. Given every vertex, samplePCByQuantization cuts each side of
+// the bounding box into 1 / 0.025 = 40 cells (1.7-3.2 mm on the cat, finer than 0.025 x 154.5 mm) and keeps
+// 5749 of the cat's 15736 vertices; trainModel then hashes all 5749^2 pairs, and in OpenCV 4.6 each insert
+// walks the bucket's list of pairs with the same quantised feature (t_hash_int.cpp), so training grows
+// with the sum of those lists' squared lengths (1.2e11 steps here: hours, measured 90 s for 1516 points
+// and over 300 s for 2569). Thinned, 1252 remain and training takes seconds.
 PpfModels train_ppf(const dataset::BopDataset& data) {
   PpfModels m;
   for (const auto& [id, info] : data.models_info()) {
     m.model_of[id] = int(m.model_of.size());
     m.cloud[id] = vertices_with_normals(data.load_model(id));
     const std::clock_t c0 = std::clock();
-    m.detector[id] = std::make_unique<cv::ppf_match_3d::PPF3DDetector>(0.025, 0.05);
-    m.detector[id]->trainModel(m.cloud[id]);
+    const cv::Mat sampled = thinned(m.cloud[id], float(kPpfSampling) * kPpfUnit * info.diameter_m);
+    m.detector[id] = std::make_unique<cv::ppf_match_3d::PPF3DDetector>(kPpfSampling, 0.05);
+    m.detector[id]->trainModel(sampled);
+    m.sampled[id] = sampled, m.diameter_m[id] = info.diameter_m;
     const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
     m.train_cpu_s += cpu;
-    std::fprintf(stderr, "PPF: trained obj %d (%d points) in %.1f CPU s\n", id, m.cloud[id].rows, cpu);
+    std::fprintf(stderr, "PPF: trained obj %d on %d of its %d vertices in %.1f CPU s\n", id, sampled.rows,
+                 m.cloud[id].rows, cpu);
   }
   return m;
 }
 
-/// OpenCV PPF + ICP (see the file comment) on every target instance's mask.
+// Per instance (see train_ppf for the model side). The scene is the mask's readings, the mask grown by 3 px
+// as a detector's crop would be (a degraded mask cut short of the silhouette loses the edge readings that
+// fix the pose). Normals from 30 neighbours (a disc of ~3 px, 4-6 mm on these frames; the sample's 6 are as
+// noisy as the Kinect's depth steps). match() quantises the scene to 20 cells per side of its box (260-480
+// samples on the cat) and takes every 5th as a reference point (52-96; the sample's 1/40 leaves ~8); each
+// gives one pose, most votes first. The default clustering is kept: in millimetres it merges nothing, and a
+// coarser position threshold merges unrelated rotations (matchPose compares the rotations' angles, not the
+// rotation between them). ICP refines the 10 most voted, and the pose with the largest fitness (fraction of
+// the model's sampled points within 0.03 x the diameter of a scene reading, as Open3D's
+// evaluate_registration) is kept: OpenCV's residual sums over the pairs left after its outlier rejection
+// and is rescaled per pose, so it favours poses that match few points, and the votes of a partial view
+// favour flips.
+constexpr int kPpfMaskGrowPx = 3;
+constexpr int kPpfNormalNeighbours = 30;
+constexpr double kPpfSceneSampleStep = 1.0 / 5.0, kPpfSceneDistance = 0.05;
+constexpr std::size_t kPpfRefined = 10;
+constexpr double kPpfFitnessDistance = 0.03;  // x diameter
+
+/// The N x 6 cloud's rows whose normals face the camera at the origin.
+cv::Mat facing_camera(const cv::Mat& pc) {
+  std::vector<int> keep;
+  for (int i = 0; i < pc.rows; ++i) {
+    const float* r = pc.ptr<float>(i);
+    if (r[0] * r[3] + r[1] * r[4] + r[2] * r[5] < 0) keep.push_back(i);
+  }
+  cv::Mat out(int(keep.size()), pc.cols, CV_32F);
+  for (int r = 0; r < out.rows; ++r) pc.row(keep[std::size_t(r)]).copyTo(out.row(r));
+  return out;
+}
+
+/// OpenCV PPF + ICP (see the comment above) on every target instance's mask.
 std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, const Images& images,
                                            const std::string& masks,
                                            const std::vector<dataset::Detection>& detections,
@@ -224,6 +303,8 @@ std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, cons
   auto by_image = dataset::detections_by_image(detections);
   dataset::ImageLoadOptions load;
   load.masks_visib = masks == "gt";
+  const cv::Mat grow =
+      cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * kPpfMaskGrowPx + 1, 2 * kPpfMaskGrowPx + 1));
   std::vector<dataset::PoseEstimate> rows;
   int done = 0;
   for (const auto& [key, targets] : images) {
@@ -235,34 +316,51 @@ std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, cons
     const std::clock_t c0 = std::clock();
     std::vector<dataset::PoseEstimate> image_rows;
     for (std::size_t k = 0; k < in.instances.size(); ++k) {
+      const int obj = in.obj_ids[k];
       const RgbdFrame& f = image.frame;
+      Image<std::uint8_t> mask = in.instances[k].mask;
+      const cv::Mat mask_cv(mask.height, mask.width, CV_8U, mask.data.data());
+      cv::dilate(mask_cv, mask_cv, grow);
       std::vector<cv::Vec3f> pts;
       for (int v = 0; v < f.camera.height; ++v)
         for (int u = 0; u < f.camera.width; ++u)
-          if (in.instances[k].mask(u, v) && f.depth_m(u, v) > 0) {
+          if (mask(u, v) && f.depth_m(u, v) > 0) {
             const Vec3f p = f.depth_m(u, v) * f.camera.ray(float(u), float(v));
-            pts.push_back({p.x, p.y, p.z});
+            pts.push_back({kPpfUnit * p.x, kPpfUnit * p.y, kPpfUnit * p.z});
           }
       if (pts.size() < 10) continue;
       cv::Mat scene(int(pts.size()), 3, CV_32F, pts.data()), scene_n;
-      ppf::computeNormalsPC3d(scene, scene_n, 6, true, cv::Vec3f(0.f, 0.f, 0.f));
+      ppf::computeNormalsPC3d(scene, scene_n, kPpfNormalNeighbours, true, cv::Vec3f(0.f, 0.f, 0.f));
       std::vector<ppf::Pose3DPtr> results;
-      models.detector[in.obj_ids[k]]->match(scene_n, results, 1.0 / 40.0, 0.05);
+      models.detector[obj]->match(scene_n, results, kPpfSceneSampleStep, kPpfSceneDistance);
       if (results.empty()) continue;
-      std::vector<ppf::Pose3DPtr> top(results.begin(),
-                                      results.begin() + std::min<std::ptrdiff_t>(5, results.size()));
+      results.resize(std::min(results.size(), kPpfRefined));
+      // ICP(100, 0.005, 2.5, 8) as in the sample, on the model points that face the camera at the pose:
+      // OpenCV's ICP pairs every model point with its nearest scene point, and the far side of the model
+      // would pull it towards the visible surface.
       ppf::ICP icp(100, 0.005f, 2.5f, 8);
-      icp.registerModelToScene(models.cloud[in.obj_ids[k]], scene_n, top);
-      const ppf::Pose3DPtr best = *std::min_element(
-          top.begin(), top.end(),
-          [](const ppf::Pose3DPtr& a, const ppf::Pose3DPtr& b) { return a->residual < b->residual; });
+      cv::flann::GenericIndex<cvflann::L2<float>> scene_index(scene, cvflann::KDTreeSingleIndexParams(8));
+      const float fit_d = float(kPpfFitnessDistance * kPpfUnit * models.diameter_m[obj]);
+      ppf::Pose3DPtr best;
+      double best_fitness = -1;
+      for (const ppf::Pose3DPtr& pose : results) {
+        const cv::Mat visible = facing_camera(ppf::transformPCPose(models.cloud[obj], pose->pose));
+        cv::Matx44d refine = cv::Matx44d::eye();
+        if (visible.rows >= 6) icp.registerModelToScene(visible, scene_n, pose->residual, refine);
+        pose->appendPose(refine);
+        const cv::Mat sampled = ppf::transformPCPose(models.sampled[obj], pose->pose).colRange(0, 3).clone();
+        cv::Mat nn(sampled.rows, 1, CV_32S), d2(sampled.rows, 1, CV_32F);
+        scene_index.knnSearch(sampled, nn, d2, 1, cvflann::SearchParams());
+        const double fitness = double(cv::countNonZero(d2 <= fit_d * fit_d)) / sampled.rows;
+        if (fitness > best_fitness) best_fitness = fitness, best = pose;
+      }
       dataset::PoseEstimate e;
-      e.scene_id = key.first, e.im_id = key.second, e.obj_id = in.obj_ids[k];
-      e.score = float(1.0 / (1.0 + best->residual));
+      e.scene_id = key.first, e.im_id = key.second, e.obj_id = obj;
+      e.score = float(best_fitness);
       Pose T = Pose::Identity();
       for (int r = 0; r < 3; ++r) {
         for (int c = 0; c < 3; ++c) T.linear()(r, c) = float(best->pose(r, c));
-        T.translation()[r] = float(best->pose(r, 3));
+        T.translation()[r] = float(best->pose(r, 3)) / kPpfUnit;
       }
       T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();
       e.T_cam_obj = T;
@@ -315,7 +413,7 @@ int main(int argc, char** argv) try {
   };
 #ifdef PERCH2_HAVE_PPF
   std::unique_ptr<PpfModels>
-      ppf_models;  // trained on first use (several CPU minutes), kept for every mask set
+      ppf_models;  // trained on first use (seconds, see train_ppf), kept for every mask set
 #endif
   for (const std::string& masks : o.masks) {
     if (o.perch2) {
