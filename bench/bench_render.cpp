@@ -9,7 +9,8 @@
 // --embree-quality choose how it traces and builds (`all`: one row per choice, the first one the reference);
 // before the rows, the peer's clouds are compared with perch2's (points per hypothesis, pixels, colours).
 // --interleave 1: instead of the table, the peer configurations, cpu and thrust_omp timed in turns in one
-// process, for ratios that hold on a machine whose speed drifts (no peak memory, no --load).
+// process, for ratios that hold on a machine whose speed drifts (no peak memory); with --load N each turn
+// renders once quiet and once beside the busy processes, and both tables come from the same rounds.
 // Default mesh: a procedural 10,224-triangle lumpy sphere with vertex colours (always available); with
 // ../shared/data present the YCB banana (15,728 triangles, 4096^2 texture) is measured too.
 #include <omp.h>
@@ -131,7 +132,8 @@ void compare_with_peer(Mesh& mesh, const std::vector<Hypothesis>& hyps) {
 /// --interleave: every peer configuration asked for (--embree-trace, --embree-quality), cpu and thrust_omp
 /// built in one process and timed in turns, one render each per round (the order rotated), so a host whose
 /// speed drifts with other sessions' load slows them all alike; each one's rate is the median over the
-/// rounds, its ratio to the first peer the median of the per-round ratios.
+/// rounds, its ratio to the first peer the median of the per-round ratios. With --load, each turn is a
+/// quiet render (the busy processes stopped) then one beside them; kept = quiet / loaded median time.
 void interleaved(Mesh& mesh, const std::vector<Hypothesis>& hyps, int runs) {
   const Intrinsics K{615.f, 615.f, 319.5f, 239.5f, 640, 480};
   std::vector<std::unique_ptr<bench::EmbreeRenderer>> peers;
@@ -156,21 +158,36 @@ void interleaved(Mesh& mesh, const std::vector<Hypothesis>& hyps, int runs) {
     render.push_back([&] { ours_cpu.render(hyps, K, s); });
     render.push_back([&] { ours_thrust.render(hyps, K, s); });
     for (const auto& f : render) f();  // warm-up
-    std::vector<std::vector<double>> seconds(n), ratio(n);
+    // Pass 0: quiet; pass 1 (with --load): beside the busy processes.
+    const int passes = competing ? 2 : 1;
+    std::vector<std::vector<double>> seconds[2], ratio[2];
+    for (int pass = 0; pass < passes; ++pass) seconds[pass].resize(n), ratio[pass].resize(n);
     for (int r = 0; r < runs; ++r) {
-      std::vector<double> t(n);
+      std::vector<double> t[2] = {std::vector<double>(n), std::vector<double>(n)};
       for (std::size_t k = 0; k < n; ++k) {
         const std::size_t b = (std::size_t(r) + k) % n;
-        const auto t0 = std::chrono::steady_clock::now();
-        render[b]();
-        t[b] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        for (int pass = 0; pass < passes; ++pass) {
+          if (competing) pass ? competing->resume() : competing->pause();
+          const auto t0 = std::chrono::steady_clock::now();
+          render[b]();
+          t[pass][b] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        }
       }
-      for (std::size_t b = 0; b < n; ++b) seconds[b].push_back(t[b]), ratio[b].push_back(t[0] / t[b]);
+      for (int pass = 0; pass < passes; ++pass)
+        for (std::size_t b = 0; b < n; ++b)
+          seconds[pass][b].push_back(t[pass][b]), ratio[pass][b].push_back(t[pass][0] / t[pass][b]);
     }
+    if (competing) competing->resume();
     for (std::size_t b = 0; b < n; ++b) {
-      const auto [lo, hi] = std::minmax_element(ratio[b].begin(), ratio[b].end());
-      std::printf("| %-30s | %6d | %12.0f | %8.2fx | %.2f-%.2fx |\n", names[b].c_str(), stride,
-                  double(hyps.size()) / bench::median(seconds[b]), bench::median(ratio[b]), *lo, *hi);
+      std::printf("| %-30s | %6d |", names[b].c_str(), stride);
+      for (int pass = 0; pass < passes; ++pass) {
+        const auto [lo, hi] = std::minmax_element(ratio[pass][b].begin(), ratio[pass][b].end());
+        std::printf(" %12.0f | %8.2fx | %.2f-%.2fx |", double(hyps.size()) / bench::median(seconds[pass][b]),
+                    bench::median(ratio[pass][b]), *lo, *hi);
+      }
+      if (competing)
+        std::printf(" %4.0f%% |", 100 * bench::median(seconds[0][b]) / bench::median(seconds[1][b]));
+      std::printf("\n");
     }
     std::fflush(stdout);
   }
@@ -189,8 +206,15 @@ void run(Mesh mesh, int num_poses, int runs, bool interleave) {
 #endif
 #ifdef PERCH2_HAVE_EMBREE
   if (interleave) {
-    std::printf("| backend | stride | hypotheses/s | vs first (median of rounds) | range |\n");
-    std::printf("|---|---|---|---|---|\n");
+    if (competing) {
+      std::printf(
+          "| backend | stride | quiet: hypotheses/s | vs first (median of rounds) | range | beside the busy "
+          "processes: hypotheses/s | vs first | range | kept |\n");
+      std::printf("|---|---|---|---|---|---|---|---|---|\n");
+    } else {
+      std::printf("| backend | stride | hypotheses/s | vs first (median of rounds) | range |\n");
+      std::printf("|---|---|---|---|---|\n");
+    }
     // In a child, as every measurement: OpenMP and Embree threads started here would hang later forks.
     std::fflush(stdout);  // or the child prints what this process buffered too
     bench::in_child([&] {

@@ -1,7 +1,10 @@
 // Triangle clusters (per-cluster back-face culling): they partition the triangles, bound them, and culling
-// them never changes what is rendered. The grid filter (grid_candidates) drops only triangles that cover
-// no sample.
+// them, or posing only the vertices of those that face the camera, never changes what is rendered. The grid
+// filter (grid_candidates) drops only triangles that cover no sample.
+#include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstring>
 #include <random>
 #include <vector>
 
@@ -29,6 +32,94 @@ std::vector<DepthTriangle> zbuffer(const MeshView& m, const Pose& T_cam_obj, con
   return z;
 }
 
+/// The corners of every triangle (position and colour), in a canonical order of the triangles.
+std::vector<std::array<float, 18>> corner_list(const std::vector<Vec3f>& v, const std::vector<Rgb8>& colors,
+                                               const std::vector<std::int32_t>& triangles) {
+  std::vector<std::array<float, 18>> out;
+  for (std::size_t t = 0; t < triangles.size(); t += 3) {
+    std::array<float, 18> c{};
+    for (int k = 0; k < 3; ++k) {
+      const std::size_t i = std::size_t(triangles[t + std::size_t(k)]);
+      const Rgb8 rgb = colors.empty() ? Rgb8{0, 0, 0} : colors[i];
+      const float corner[6] = {v[i].x, v[i].y, v[i].z, float(rgb.r), float(rgb.g), float(rgb.b)};
+      std::copy(corner, corner + 6, c.begin() + 6 * k);
+    }
+    out.push_back(c);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+/// MeshArrays::block_vertices: the same triangles (corner positions and colours), vertices numbered in order
+/// of first use, vertex_xyz the vertices, and every corner's block in its cluster's masks.
+void check_vertex_blocks(const Mesh& original, const MeshArrays& a) {
+  std::vector<Vec3f> v0;
+  std::vector<std::int32_t> t0;
+  for (const auto& p : original.vertices) v0.push_back({p.x(), p.y(), p.z()});
+  for (const auto& t : original.triangles) t0.insert(t0.end(), {t[0], t[1], t[2]});
+  REQUIRE(corner_list(v0, original.vertex_colors, t0) ==
+          corner_list(a.vertices, a.vertex_colors, a.triangles));
+  const std::size_t nv = a.vertices.size();
+  REQUIRE(a.vertex_xyz.size() == 3 * nv);
+  for (std::size_t k = 0; k < nv; ++k)
+    REQUIRE((a.vertex_xyz[k] == a.vertices[k].x && a.vertex_xyz[nv + k] == a.vertices[k].y &&
+             a.vertex_xyz[2 * nv + k] == a.vertices[k].z));
+  std::int32_t next_new = 0;
+  for (const std::int32_t v : a.triangles) {
+    REQUIRE(v <= next_new);  // first used in order
+    next_new = std::max(next_new, v + 1);
+  }
+  for (const TriangleCluster& c : a.clusters)
+    for (int t = c.first; t < c.first + c.count; ++t)
+      for (int k = 0; k < 3; ++k) {
+        const int block = a.triangles[std::size_t(3 * t + k)] / kPoseBlock;
+        bool found = false;
+        for (int m = c.first_mask; m < c.first_mask + c.num_masks; ++m)
+          found = found || (a.vertex_masks[std::size_t(m)].word == block / 64 &&
+                            (a.vertex_masks[std::size_t(m)].bits >> (block % 64) & 1u));
+        REQUIRE(found);
+      }
+}
+
+/// render_hypothesis posing only the vertex blocks of the front-facing clusters renders what posing every
+/// vertex renders (random poses, some crossing the near plane; strides 1 and 4).
+void check_front_cluster_posing(Mesh mesh, int num_poses, float z_min, float z_max, unsigned seed) {
+  const MeshArrays a(std::move(mesh));
+  const MeshView blocked = a.host_view();
+  REQUIRE(blocked.vertex_masks != nullptr);
+  MeshView every = blocked;
+  every.vertex_masks = nullptr;
+  const Intrinsics K = test::vga_camera();
+  std::mt19937 rng(seed);
+  std::vector<PosedPoint> p_cam(a.vertices.size());
+  std::vector<GridSpan> spans(a.vertices.size());
+  std::vector<std::int32_t> front(a.clusters.size());
+  std::vector<std::uint64_t> blocks(std::size_t(vertex_block_words(int(a.vertices.size()))));
+  std::size_t samples = 0;
+  for (int k = 0; k < num_poses; ++k) {
+    const Rigid3f T = to_rigid(test::random_pose(rng, z_min, z_max));
+    for (const int stride : {1, 4}) {
+      const RenderParams p{K, stride, 0.01f, true, OccluderView{}};
+      const GridRoi roi = model_roi(blocked, T, K, stride, p.near_m);
+      std::vector<DepthTriangle> zbuf(std::size_t(roi.size()));
+      const HypothesisScratch s{p_cam.data(), spans.data(), zbuf.data(), front.data(), blocks.data()};
+      const auto render = [&](const MeshView& m) {
+        // Stale values that would render if read: points behind the camera with spans over the whole grid.
+        std::fill(p_cam.begin(), p_cam.end(), PosedPoint{0.f, 0.f, -1.f, 0.f});
+        std::fill(spans.begin(), spans.end(), GridSpan{0, 0, -kMaxGridSize, -kMaxGridSize, 0.f, 0.f});
+        std::vector<RenderedSample> out(std::size_t(roi.size()));
+        out.resize(std::size_t(render_hypothesis(m, T, 0, roi, p, s, out.data())));
+        return out;
+      };
+      const std::vector<RenderedSample> x = render(blocked), y = render(every);
+      REQUIRE(x.size() == y.size());
+      REQUIRE(std::memcmp(x.data(), y.data(), x.size() * sizeof(RenderedSample)) == 0);
+      samples += x.size();
+    }
+  }
+  CHECK(samples > 0);
+}
+
 void check_clusters(Mesh mesh) {
   const Mesh original = mesh;
   const MeshArrays a(std::move(mesh));
@@ -43,6 +134,7 @@ void check_clusters(Mesh mesh) {
     next += c.count;
   }
   REQUIRE(next == n);
+  check_vertex_blocks(original, a);
   // Bounds: every corner inside the sphere, every unit normal inside the cone.
   for (const TriangleCluster& c : a.clusters)
     for (int t = c.first; t < c.first + c.count; ++t) {
@@ -172,10 +264,17 @@ TEST_CASE("culling clusters that face away renders the same z-buffer as culling 
   check_culling_changes_nothing(test::lumpy_sphere(0.06f, 71, 72), 60, 0.3f, 1.2f, 2);
 }
 
+TEST_CASE("posing only the vertex blocks of front-facing clusters renders what posing every vertex renders") {
+  std::mt19937 rng(9);
+  check_front_cluster_posing(test::make_blob(rng, 0.05f, 30, 40), 60, 0.0f, 1.2f, 6);
+  check_front_cluster_posing(test::lumpy_sphere(0.06f, 71, 72), 40, 0.0f, 1.2f, 7);
+}
+
 TEST_CASE("cluster culling changes nothing on the scanned LINEMOD cat") {
   PERCH2_REQUIRE_SHARED_DATA(path, "models/linemod_obj_06/obj_06.ply");
   io::MeshLoadOptions mm;
   mm.scale = 0.001f;
   check_clusters(io::load_mesh(path, mm));
   check_culling_changes_nothing(io::load_mesh(path, mm), 40, 0.35f, 1.6f, 3);
+  check_front_cluster_posing(io::load_mesh(path, mm), 40, 0.0f, 1.6f, 8);
 }

@@ -22,6 +22,8 @@ struct Scratch {
   std::vector<DepthTriangle> zbuf;
   std::vector<PosedPoint> verts_cam;
   std::vector<GridSpan> spans;
+  std::vector<std::int32_t> front_clusters;
+  std::vector<std::uint64_t> vertex_blocks;
   std::vector<RenderedSample> samples;  ///< room for an ROI's samples; the visible ones are copied out
 };
 
@@ -35,7 +37,9 @@ void render_one(const MeshView& m, const Rigid3f& T_cam_obj, std::int32_t label,
                 Scratch& scratch, LocalCloud& out) {
   const GridRoi roi = model_roi(m, T_cam_obj, p.K, p.stride, p.near_m);
   const HypothesisScratch s{at_least(scratch.verts_cam, m.num_vertices),
-                            at_least(scratch.spans, m.num_vertices), at_least(scratch.zbuf, roi.size())};
+                            at_least(scratch.spans, m.num_vertices), at_least(scratch.zbuf, roi.size()),
+                            at_least(scratch.front_clusters, m.num_clusters),
+                            at_least(scratch.vertex_blocks, vertex_block_words(m.num_vertices))};
   RenderedSample* samples = at_least(scratch.samples, roi.size());
   const int n = render_hypothesis(m, T_cam_obj, label, roi, p, s, samples);
   out.samples.assign(samples, samples + n);

@@ -36,6 +36,7 @@ struct DeviceMesh {
   thrust::device_vector<Rgb8> vertex_colors, texture;
   thrust::device_vector<Vec2f> corner_uvs;
   thrust::device_vector<TriangleCluster> clusters;
+  thrust::device_vector<VertexBlockMask> vertex_masks;
   MeshView view;
 
   explicit DeviceMesh(const MeshArrays& a)
@@ -46,8 +47,9 @@ struct DeviceMesh {
         texture(to_device(a.texture)),
         corner_uvs(to_device(a.corner_uvs)),
         clusters(to_device(a.clusters)),
+        vertex_masks(to_device(a.vertex_masks)),
         view(a.view(ptr(vertices), ptr(vertex_xyz), ptr(triangles), ptr(vertex_colors), ptr(corner_uvs),
-                    ptr(texture), ptr(clusters))) {}
+                    ptr(texture), ptr(clusters), ptr(vertex_masks))) {}
 };
 
 /// Per-hypothesis inputs of one render call, in device memory.
@@ -192,12 +194,15 @@ struct RenderWhole {
   PosedPoint* p_cam;
   GridSpan* spans;
   DepthTriangle* zbuf;
-  std::int64_t max_vertices, max_roi;  // scratch per worker
+  std::int32_t* front_clusters;
+  std::uint64_t* vertex_blocks;
+  std::int64_t max_vertices, max_clusters, max_roi;  // scratch per worker
   RenderedSample* samples;
   std::int64_t* visible;
   PERCH2_HD void operator()(std::int64_t worker) const {
     const HypothesisScratch s{p_cam + worker * max_vertices, spans + worker * max_vertices,
-                              zbuf + worker * max_roi};
+                              zbuf + worker * max_roi, front_clusters + worker * max_clusters,
+                              vertex_blocks + worker * vertex_block_words(int(max_vertices))};
     cuda::atomic_ref<int, cuda::thread_scope_device> counter(*next);
     for (int k = counter.fetch_add(1, cuda::memory_order_relaxed); k < count;
          k = counter.fetch_add(1, cuda::memory_order_relaxed)) {
@@ -245,6 +250,7 @@ void copy_to(T* device, const std::vector<T>& host) {
 template <class System>
 void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const RenderParams& params,
                          const std::vector<std::int64_t>& hyp_vertices,
+                         const std::vector<std::int64_t>& hyp_clusters,
                          const std::vector<std::int64_t>& roi_samples, std::size_t budget, DeviceArena& arena,
                          LaunchShape& shape, CloudBatch& batch) {
   static_assert(!System::pinned_host_buffers,
@@ -252,7 +258,7 @@ void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const
   using Items = thrust::counting_iterator<std::int64_t>;
   const int workers = cpu_system_workers();
   const std::vector<WholeRenderChunk> chunks =
-      plan_whole_render_chunks(hyp_vertices, roi_samples, budget, workers);
+      plan_whole_render_chunks(hyp_vertices, hyp_clusters, roi_samples, budget, workers);
   std::size_t arena_bytes = 0;
   for (const WholeRenderChunk& ch : chunks) arena_bytes = std::max(arena_bytes, ch.arena_bytes());
   if (arena.reserve(arena_bytes, budget)) ++shape.device_allocations;
@@ -264,6 +270,8 @@ void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const
     PosedPoint* p_cam = arena.take<PosedPoint>(W * V);
     GridSpan* spans = arena.take<GridSpan>(W * V);
     DepthTriangle* zbuf = arena.take<DepthTriangle>(W * R);
+    std::int32_t* front_clusters = arena.take<std::int32_t>(W * std::size_t(ch.max_clusters));
+    std::uint64_t* vertex_blocks = arena.take<std::uint64_t>(W * std::size_t(vertex_block_words(int(V))));
     int* next = reinterpret_cast<int*>(arena.take<std::int64_t>(1));  // two counters: render, scatter
     std::int64_t *pixels = arena.take<std::int64_t>(H), *visible = arena.take<std::int64_t>(H),
                  *slot = arena.take<std::int64_t>(H);
@@ -272,7 +280,8 @@ void render_whole_chunks(const HypothesisArgs& args, const GridRoi* d_roi, const
     copy_to(next, std::vector<int>{0, 0});
     thrust::for_each(thrust::device, Items(0), Items(workers),
                      RenderWhole{args, params, ch.first, ch.count, d_roi + ch.first, pixels, next, p_cam,
-                                 spans, zbuf, std::int64_t(V), std::int64_t(R), samples, visible});
+                                 spans, zbuf, front_clusters, vertex_blocks, std::int64_t(V), ch.max_clusters,
+                                 std::int64_t(R), samples, visible});
     // Output slots on the host: the per-hypothesis counts come back anyway to set the batch offsets.
     visible_host.clear(), slot_host.assign(1, 0);
     append_to_host(visible_host, visible, std::size_t(ch.count));
@@ -307,7 +316,7 @@ inline Domain upload_domain(DeviceArena& arena, const HostDomain& d) {
 template <class System>
 struct Renderer<System>::Impl {
   struct Sizes {
-    std::size_t vertices, triangles;
+    std::size_t vertices, triangles, clusters;
   };
   std::vector<Sizes> host;  // the arrays themselves live on the device only
   std::vector<std::unique_ptr<render_detail::DeviceMesh>> device;
@@ -339,7 +348,7 @@ Renderer<System>::Renderer(std::vector<Mesh> models) : impl_(std::make_unique<Im
   std::vector<MeshView> views;
   for (auto& mesh : models) {
     const MeshArrays arrays(std::move(mesh));
-    impl_->host.push_back({arrays.vertices.size(), arrays.triangles.size() / 3});
+    impl_->host.push_back({arrays.vertices.size(), arrays.triangles.size() / 3, arrays.clusters.size()});
     impl_->device.push_back(std::make_unique<render_detail::DeviceMesh>(arrays));
     views.push_back(impl_->device.back()->view);
   }
@@ -402,16 +411,17 @@ CloudBatch Renderer<System>::render(const std::vector<Hypothesis>& hypotheses, c
   using Items = thrust::counting_iterator<std::int64_t>;
   const std::size_t budget = s.memory_budget_bytes ? s.memory_budget_bytes : System::default_chunk_bytes;
   // Plan the chunks (perch2/cuda/launch_plan.hpp): all of a chunk's device memory fits the budget.
-  std::vector<std::int64_t> hyp_vertices(n), hyp_triangles(n), roi_samples(n);
+  std::vector<std::int64_t> hyp_vertices(n), hyp_triangles(n), hyp_clusters(n), roi_samples(n);
   for (int k = 0; k < n; ++k) {
     hyp_vertices[k] = std::int64_t(impl_->host[model[k]].vertices);
     hyp_triangles[k] = std::int64_t(impl_->host[model[k]].triangles);
+    hyp_clusters[k] = std::int64_t(impl_->host[model[k]].clusters);
     roi_samples[k] = roi[k].size();
   }
   if constexpr (System::render_whole_hypotheses) {
     const RenderParams params{camera, s.stride, s.near_m, s.cull_back_faces, occ};
-    render_whole_chunks<System>(args, d_roi, params, hyp_vertices, roi_samples, budget, w.arena, w.shape,
-                                batch);
+    render_whole_chunks<System>(args, d_roi, params, hyp_vertices, hyp_clusters, roi_samples, budget, w.arena,
+                                w.shape, batch);
     w.shape.workspace_bytes = workspace_bytes(w);
     return batch;
   }

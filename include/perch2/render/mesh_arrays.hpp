@@ -21,7 +21,8 @@ struct MeshArrays {
   std::vector<std::int32_t> triangles;
   std::vector<Rgb8> vertex_colors, texture;
   std::vector<Vec2f> corner_uvs;
-  std::vector<TriangleCluster> clusters;  ///< cover the triangles in order (see cluster_triangles)
+  std::vector<TriangleCluster> clusters;      ///< cover the triangles in order (see cluster_triangles)
+  std::vector<VertexBlockMask> vertex_masks;  ///< per cluster, the vertex blocks it uses (see block_vertices)
   int texture_width = 0, texture_height = 0;
   Rgb8 base_color{200, 200, 200};
   Vec3f box_min{0, 0, 0}, box_max{0, 0, 0};
@@ -32,9 +33,6 @@ struct MeshArrays {
     mesh.validate();
     vertices.reserve(mesh.vertices.size());
     for (const auto& v : mesh.vertices) vertices.push_back({v.x(), v.y(), v.z()});
-    vertex_xyz.resize(3 * vertices.size());
-    for (std::size_t k = 0, n = vertices.size(); k < n; ++k)
-      vertex_xyz[k] = vertices[k].x, vertex_xyz[n + k] = vertices[k].y, vertex_xyz[2 * n + k] = vertices[k].z;
     triangles.reserve(3 * mesh.triangles.size());
     for (const auto& t : mesh.triangles) triangles.insert(triangles.end(), {t[0], t[1], t[2]});
     vertex_colors = std::move(mesh.vertex_colors);
@@ -49,15 +47,19 @@ struct MeshArrays {
     mesh = Mesh{};
     box_min = to_vec3(box.min()), box_max = to_vec3(box.max());
     cluster_triangles();
+    block_vertices();
   }
 
   /// A view whose pointers address the given (host or device) copies of these arrays (`cl`: of clusters;
   /// null renders without cluster culling, with identical results on well-conditioned meshes).
+  /// `masks`: of vertex_masks; null poses every vertex.
   MeshView view(const Vec3f* v, const float* xyz, const std::int32_t* t, const Rgb8* vc, const Vec2f* uv,
-                const Rgb8* tex, const TriangleCluster* cl = nullptr) const {
+                const Rgb8* tex, const TriangleCluster* cl = nullptr,
+                const VertexBlockMask* masks = nullptr) const {
     MeshView m;
     m.clusters = clusters.empty() ? nullptr : cl;
     m.num_clusters = m.clusters ? int(clusters.size()) : 0;
+    m.vertex_masks = m.clusters && !vertex_masks.empty() ? masks : nullptr;
     m.vertices = v, m.vertex_xyz = xyz, m.triangles = t;
     m.vertex_colors = vertex_colors.empty() ? nullptr : vc;
     m.corner_uvs = corner_uvs.empty() ? nullptr : uv;
@@ -69,7 +71,7 @@ struct MeshArrays {
   }
   MeshView host_view() const {
     return view(vertices.data(), vertex_xyz.data(), triangles.data(), vertex_colors.data(), corner_uvs.data(),
-                texture.data(), clusters.data());
+                texture.data(), clusters.data(), vertex_masks.data());
   }
 
   /// Triangles per cluster: enough to amortise the cone test, few enough for tight cones and spheres.
@@ -115,6 +117,44 @@ struct MeshArrays {
     }
   }
 
+  /// Renumbers the vertices in the order the (clustered) triangles first use them, so that a cluster's
+  /// vertices fill few blocks of kPoseBlock, records each cluster's blocks (vertex_masks) and builds
+  /// vertex_xyz. Vertices no triangle uses go last, in no block. Posing only the blocks of the clusters that
+  /// face the camera then poses 68-72% of the vertices of the benchmark's closed models (the vertices their
+  /// front-facing triangles use: 65-68%).
+  void block_vertices() {
+    const std::size_t nv = vertices.size();
+    std::vector<std::int32_t> new_index(nv, -1);
+    std::vector<std::size_t> order;  // old index of each new vertex
+    order.reserve(nv);
+    for (std::int32_t& v : triangles) {
+      if (new_index[std::size_t(v)] < 0)
+        new_index[std::size_t(v)] = std::int32_t(order.size()), order.push_back(std::size_t(v));
+      v = new_index[std::size_t(v)];
+    }
+    for (std::size_t v = 0; v < nv; ++v)
+      if (new_index[v] < 0) new_index[v] = std::int32_t(order.size()), order.push_back(v);
+    permute(vertices, order);
+    if (!vertex_colors.empty()) permute(vertex_colors, order);
+    vertex_xyz.resize(3 * nv);
+    for (std::size_t k = 0; k < nv; ++k)
+      vertex_xyz[k] = vertices[k].x, vertex_xyz[nv + k] = vertices[k].y,
+      vertex_xyz[2 * nv + k] = vertices[k].z;
+    vertex_masks.clear();
+    for (TriangleCluster& c : clusters) {
+      c.first_mask = int(vertex_masks.size());
+      for (int t = c.first; t < c.first + c.count; ++t)
+        for (int k = 0; k < 3; ++k) {
+          const int block = triangles[std::size_t(3 * t + k)] / kPoseBlock, word = block / 64;
+          std::size_t at = std::size_t(c.first_mask);
+          while (at < vertex_masks.size() && vertex_masks[at].word != word) ++at;
+          if (at == vertex_masks.size()) vertex_masks.push_back({0, word});
+          vertex_masks[at].bits |= std::uint64_t(1) << (block % 64);
+        }
+      c.num_masks = int(vertex_masks.size()) - c.first_mask;
+    }
+  }
+
  private:
   Vec3f corner(int t, int k) const { return vertices[std::size_t(triangles[std::size_t(3 * t + k)])]; }
 
@@ -139,6 +179,14 @@ struct MeshArrays {
       out |= std::uint64_t((x >> b) & 1u) << (3 * b) | std::uint64_t((y >> b) & 1u) << (3 * b + 1) |
              std::uint64_t((z >> b) & 1u) << (3 * b + 2);
     return out;
+  }
+
+  template <class T>
+  static void permute(std::vector<T>& v, const std::vector<std::size_t>& order) {
+    std::vector<T> out;
+    out.reserve(order.size());
+    for (const std::size_t k : order) out.push_back(v[k]);
+    v = std::move(out);
   }
 
   void permute_triangles(const std::vector<int>& order) {

@@ -91,25 +91,30 @@ inline std::vector<RenderChunk> plan_render_chunks(const std::vector<std::int64_
 struct WholeRenderChunk {
   int first = 0, count = 0, workers = 1;
   HostDomain pixels;
-  std::int64_t max_vertices = 0, max_roi = 0;  ///< scratch per worker: posed vertices, z-buffer
+  /// Scratch per worker: posed vertices and their blocks, front-facing clusters, z-buffer.
+  std::int64_t max_vertices = 0, max_clusters = 0, max_roi = 0;
   std::size_t arena_bytes() const {
-    return bytes(workers, max_vertices, max_roi, count, pixels.elements.back());
+    return bytes(workers, max_vertices, max_clusters, max_roi, count, pixels.elements.back());
   }
-  /// Carved in this order: worker scratch; counter; ROI offsets, visible counts, output slots; resolved
-  /// samples (the compacted outputs are written to the host batch directly).
-  static std::size_t bytes(int workers, std::int64_t max_vertices, std::int64_t max_roi, int count,
-                           std::int64_t pixels) {
+  /// Carved in this order: worker scratch (posed vertices, spans, z-buffer, front-facing clusters, vertex
+  /// blocks); counter; ROI offsets, visible counts, output slots; resolved samples (the compacted outputs are
+  /// written to the host batch directly).
+  static std::size_t bytes(int workers, std::int64_t max_vertices, std::int64_t max_clusters,
+                           std::int64_t max_roi, int count, std::int64_t pixels) {
     const auto a = arena_aligned;
     const std::size_t V = std::size_t(max_vertices), R = std::size_t(max_roi), H = std::size_t(count) + 1,
-                      P = std::size_t(pixels), W = std::size_t(workers);
+                      P = std::size_t(pixels), W = std::size_t(workers), C = std::size_t(max_clusters),
+                      B = std::size_t(vertex_block_words(int(max_vertices)));
     return a(W * V * sizeof(PosedPoint)) + a(W * V * sizeof(GridSpan)) + a(W * R * sizeof(DepthTriangle)) +
-           a(8) + 3 * a(H * 8) + a(P * sizeof(RenderedSample));
+           a(W * C * 4) + a(W * B * 8) + a(8) + 3 * a(H * 8) + a(P * sizeof(RenderedSample));
   }
 };
 
 /// Splits a batch into whole-hypothesis chunks, each grown while its arena fits budget_bytes (a chunk
-/// always holds at least one hypothesis). Per hypothesis: its model's vertex count and its ROI samples.
+/// always holds at least one hypothesis). Per hypothesis: its model's vertex and cluster counts and its ROI
+/// samples.
 inline std::vector<WholeRenderChunk> plan_whole_render_chunks(const std::vector<std::int64_t>& vertices,
+                                                              const std::vector<std::int64_t>& clusters,
                                                               const std::vector<std::int64_t>& roi_samples,
                                                               std::size_t budget_bytes, int workers) {
   const int n = int(roi_samples.size());
@@ -118,12 +123,13 @@ inline std::vector<WholeRenderChunk> plan_whole_render_chunks(const std::vector<
     WholeRenderChunk ch;
     ch.first = first, ch.workers = workers;
     for (int h = first; h < n; ++h) {
-      const std::int64_t V = std::max(ch.max_vertices, vertices[h]), R = std::max(ch.max_roi, roi_samples[h]);
-      if (ch.count > 0 && WholeRenderChunk::bytes(workers, V, R, ch.count + 1,
+      const std::int64_t V = std::max(ch.max_vertices, vertices[h]),
+                         C = std::max(ch.max_clusters, clusters[h]), R = std::max(ch.max_roi, roi_samples[h]);
+      if (ch.count > 0 && WholeRenderChunk::bytes(workers, V, C, R, ch.count + 1,
                                                   ch.pixels.elements.back() + roi_samples[h]) > budget_bytes)
         break;
       ch.pixels.add(roi_samples[h]);
-      ++ch.count, ch.max_vertices = V, ch.max_roi = R;
+      ++ch.count, ch.max_vertices = V, ch.max_clusters = C, ch.max_roi = R;
     }
     first += ch.count;
     chunks.push_back(std::move(ch));
