@@ -659,6 +659,54 @@ TEST_CASE("selection charges a pose for the share of it that is hidden or out of
   MESSAGE("behind the box: " << behind->cost.rendered_points << " points, hidden share " << hidden_share);
 }
 
+TEST_CASE("pixels without a depth reading hide what is rendered there instead of counting against it") {
+  // A red can in view with no depth reading over the left three fifths of it, as a sensor leaves one in the
+  // shadow of its projector or beside a depth edge: the missing readings are unseen (the hidden share,
+  // weighed by hidden_point_weight), not rendered outliers. Counted as outliers they fail the acceptance
+  // test (min_inlier_fraction) and the can is not found at all.
+  const float cx = 0.05f, cy = 0.05f;
+  RgbdFrame frame = render_scene(can_meshes(), {{0, cx, cy, 1.f}});
+  const RgbdFrame table_only = render_scene(can_meshes(), {});
+  std::vector<std::size_t> can_pixels;  // where the can is the nearest surface
+  const auto width = std::size_t(frame.camera.width);
+  int u_min = frame.camera.width, u_max = -1;
+  for (std::size_t i = 0; i < frame.depth_m.data.size(); ++i)
+    if (frame.depth_m.data[i] > 0.f && frame.depth_m.data[i] < table_only.depth_m.data[i] - 1e-4f) {
+      can_pixels.push_back(i);
+      u_min = std::min(u_min, int(i % width)), u_max = std::max(u_max, int(i % width));
+    }
+  REQUIRE(can_pixels.size() > 300);
+  const int u_cut = u_min + (u_max - u_min) * 3 / 5;
+  std::size_t removed = 0;
+  for (const std::size_t i : can_pixels)
+    if (int(i % width) < u_cut) frame.depth_m.data[i] = 0.f, ++removed;
+  MESSAGE("can pixels " << can_pixels.size() << ", without a reading " << removed);
+  TabletopSettings s;
+  s.strict_instances = false;
+  const TabletopResult r =
+      TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 1}}, camera_pose());
+  REQUIRE(r.poses.size() == 1);
+  const TabletopPose& p = r.poses[0];
+  CHECK(xy_error(p, cx, cy) < 0.01f);
+  const float hidden_share = (p.score - p.cost.total) / s.hidden_point_weight;
+  CHECK(p.cost.rendered_depth_outliers < p.cost.rendered_points / 10);
+  CHECK(hidden_share > 0.5f * float(removed) / float(can_pixels.size()));
+  s.missing_depth_hides = false;
+  const TabletopResult old =
+      TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 1}}, camera_pose());
+  MESSAGE("with missing_depth_hides: error " << xy_error(p, cx, cy) << " m, depth outliers "
+                                             << p.cost.rendered_depth_outliers << " of "
+                                             << p.cost.rendered_points << ", hidden share " << hidden_share);
+  MESSAGE("without: " << old.poses.size() << " pose(s)");
+  if (!old.poses
+           .empty()) {  // found after all: then with most of what fell on the missing readings unexplained
+    const TabletopPose& q = old.poses[0];
+    MESSAGE("without: error " << xy_error(q, cx, cy) << " m, depth outliers "
+                              << q.cost.rendered_depth_outliers << " of " << q.cost.rendered_points);
+    CHECK(q.cost.rendered_depth_outliers > 3 * std::max(1, p.cost.rendered_depth_outliers));
+  }
+}
+
 TEST_CASE("an unknown object (not among the models) neither attracts the cans nor hides them") {
   // A grey box (not a model) beside the cans and partly in front of the red one.
   std::vector<Mesh> meshes = can_meshes();
@@ -712,8 +760,10 @@ TEST_CASE("the yaw search turns a printed can's label right, untextured models k
                              eval::ModelPoints(g.models[std::size_t(m)].mesh.vertices)) < 0.01);
     }
   }
-  CHECK(worst_off > 0.15f);  // the search is what turns the label right
-  CHECK(worst_on < 0.5f * worst_off);
+  // The search turns the label nearer than ICP alone. Since pixels without a depth reading hide what is
+  // rendered there (TabletopSettings::missing_depth_hides) ICP alone leaves the can at most 4.6 deg off in
+  // these three scenes (before: more than 8.6 deg), the search 3.3 deg.
+  CHECK(worst_on < worst_off);
   // Only the can is searched: requesting the bowl and block alone turns nothing.
   const GeneratedScene g = generated_scene({2, 6, 7}, {1.f, NAN, NAN}, 6);
   const TabletopResult plain = TabletopEstimator<thrust_omp::Backend>(g.tabletop_models)

@@ -280,6 +280,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ts, TabletopSettings, rescore_yaws);
   PERCH2_RW(ts, TabletopSettings, rescore_place_radius_m);
   PERCH2_RW(ts, TabletopSettings, occluder_marking);
+  PERCH2_RW(ts, TabletopSettings, missing_depth_hides);
   PERCH2_RW(ts, TabletopSettings, refine);
   PERCH2_RW(ts, TabletopSettings, icp_max_points);
   PERCH2_RW(ts, TabletopSettings, min_icp_inlier_fraction);
