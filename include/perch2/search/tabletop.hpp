@@ -216,9 +216,9 @@ struct TabletopSettings {
   /// the pose's samples hidden by nearer observed depth, by a missing reading (missing_depth_hides) or
   /// outside the image), as if each unseen point were an outlier with this probability. Occluder marking
   /// drops hidden points from J_r, so without this term a pose almost entirely hidden or out of view (a few
-  /// points left, all explained) costs ~0 and beats an object in full view. On bench_tabletop's 30 scenes: ADD-S < 1 cm 95.2% at 0, 95.9% at 0.1 and 0.25;
-  /// 0.25 still lets a pose in full view with up to a quarter of its points unexplained win over a zero-cost
-  /// one that is hidden. 0: the cost alone.
+  /// points left, all explained) costs ~0 and beats an object in full view. On bench_tabletop's 30 scenes:
+  /// ADD-S < 1 cm 95.2% at 0, 95.9% at 0.1 and 0.25; 0.25 still lets a pose in full view with up to a quarter
+  /// of its points unexplained win over a zero-cost one that is hidden. 0: the cost alone.
   float hidden_point_weight = 0.25f;
   /// ... and hold at least this many observed readings in its volume: a hypothesis hidden behind another
   /// object shows a few points and has an empty volume, so its raw-count cost would be near 0 (not used by
