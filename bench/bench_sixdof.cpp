@@ -20,8 +20,10 @@
 //                     [--backend cpu|thrust_omp|both (cpu)] [--dir SCRATCH (/tmp/perch2_bench_sixdof)]
 //                     [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]
 //                     [--local N (local search candidates per instance)] [--sweep N (its sweep turns)]
+//                     [--final-stride N (its final comparison's render stride)]
+//                     [--geometry-tolerance X (its look-alike tolerance)]
+//                     [--placed-only 0|1 (--masks none: local search only for the candidate being placed)]
 //                     [--dedupe 0|1 (de-duplication after the ICP warm-up)]
-//                     [--local-select 0|1 (the local search's winner by its own cost or the final one)]
 //                     [--fit N (Gauss-Newton steps of the final surface fit, 0 = off)]
 //                     [--target-stride N (the first pass' GICP target grid, pixels)]
 #include <omp.h>
