@@ -707,6 +707,43 @@ TEST_CASE("pixels without a depth reading hide what is rendered there instead of
   }
 }
 
+TEST_CASE("the second look finds an instance the grid missed where the selected poses leave readings") {
+  // Two red cans; the second stands behind a tall grey box (not a model) that hides all but a sliver of it.
+  // With a 0.2 m grid no start lies within ICP's reach of the sliver: the first pass places one can and
+  // finds no acceptable pose for the other. The second look searches the readings no selected footprint
+  // explains (the sliver and the box), at half the step, refined against those readings alone.
+  const float bx = 0.06f, by = 0.10f;
+  std::vector<Mesh> meshes = can_meshes();
+  meshes.push_back(grey_box_on_table(0.07f, 0.04f, 0.14f));
+  const RgbdFrame frame =
+      render_scene(meshes, {{0, -0.08f, 0.02f, 0.f}, {0, bx, by, 0.5f}, {2, bx - 0.01f, by - 0.07f, 0.f}});
+  TabletopSettings s;
+  s.strict_instances = false;
+  s.xy_step_m = 0.2f;
+  s.second_look = false;
+  const TabletopResult first =
+      TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 2}}, camera_pose());
+  REQUIRE(first.poses.size() == 1);
+  CHECK(xy_error(first.poses[0], -0.08f, 0.02f) < 0.01f);
+  REQUIRE(first.missing.size() == 1);
+  s.second_look = true;
+  const TabletopResult r =
+      TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 2}}, camera_pose());
+  REQUIRE(r.poses.size() == 2);
+  CHECK(r.missing.empty());
+  const TabletopPose *a = pose_of(r, 0, 0), *b = pose_of(r, 0, 1);
+  if (xy_error(*a, bx, by) < xy_error(*b, bx, by)) std::swap(a, b);
+  CHECK(xy_error(*a, -0.08f, 0.02f) < 0.01f);
+  CHECK(xy_error(*b, bx, by) < 0.02f);  // a sliver of 12 cm x ~1.5 cm: its depth is all there is
+  MESSAGE("behind the box: error " << xy_error(*b, bx, by) << " m, " << b->cost.rendered_points
+                                   << " points; hypotheses scored " << first.hypotheses_scored << " -> "
+                                   << r.hypotheses_scored);
+  s.second_look_margin_m = -0.01f;
+  CHECK_THROWS_WITH_AS(
+      TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 2}}, camera_pose()),
+      doctest::Contains("margins"), InvalidInput);
+}
+
 TEST_CASE("an unknown object (not among the models) neither attracts the cans nor hides them") {
   // A grey box (not a model) beside the cans and partly in front of the red one.
   std::vector<Mesh> meshes = can_meshes();

@@ -293,6 +293,8 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ts, TabletopSettings, min_inlier_fraction);
   PERCH2_RW(ts, TabletopSettings, hidden_point_weight);
   PERCH2_RW(ts, TabletopSettings, min_observed_in_volume);
+  PERCH2_RW(ts, TabletopSettings, second_look);
+  PERCH2_RW(ts, TabletopSettings, second_look_margin_m);
   PERCH2_RW(ts, TabletopSettings, overlap_tolerance_m);
   PERCH2_RW(ts, TabletopSettings, exclusive_placements);
   PERCH2_RW(ts, TabletopSettings, tree_max_occluding_fraction);
