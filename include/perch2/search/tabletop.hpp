@@ -25,10 +25,11 @@
 //             the best few yaws at each model's best places again at score_stride; J_o's volume is the
 //             model's convex footprint prism from min_height_m to its top, posed by the hypothesis
 //   select    per model, the lowest-cost acceptable poses (min_rendered_points, min_inlier_fraction) whose
-//             footprints do not interpenetrate by more than overlap_tolerance_m, `count` of them
+//             footprints do not interpenetrate by more than overlap_tolerance_m, `count` of them; where
+//             some are missing, a second look over the readings no selected footprint explains (second_look)
 //   yaw       the yaw (and x, y by a millimetre or two) of every selected pose of a model whose colours a
-//             turn changes, by a sweep and hill climbing over turns about the table normal scored with the
-//             nearest-colour test (YawSearchSettings, perch2/search/local_search.hpp): ICP cannot turn a
+//             turn changes, by a sweep and hill climbing over turns about the table normal scored by the
+//             print's appearance (YawSearchSettings, perch2/search/local_search.hpp): ICP cannot turn a
 //             printed can or bottle, and the grid's yaws and the tolerant colour test leave its label up to
 //             tens of degrees off
 //
