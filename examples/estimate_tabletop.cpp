@@ -27,7 +27,7 @@ int main(int argc, char** argv) try {
   // --- the library use: models, one frame, the objects it shows, optionally the table frame ---
   std::vector<TabletopModel> models;
   for (const auto& c : cans) models.push_back({c.mesh, /*yaw_symmetric=*/false, std::nullopt});
-  TabletopEstimator<cpu::Backend> estimator(models);  // PERCH 2.0-C, the paper's settings
+  TabletopEstimator<cpu::Backend> estimator(models);  // PERCH 2.0-C, then polish and yaw search
   const RgbdFrame frame{sensor.camera, sensor.depth_m, sensor.rgb};
   const std::vector<ObjectCount> objects{{0, 1}, {1, 1}, {2, 1}};  // model index, instances
   const Pose T_cam_world = T_world_cam.inverse();  // omit to estimate the table plane from the depth

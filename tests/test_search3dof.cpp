@@ -535,6 +535,15 @@ TEST_CASE("the tabletop search rejects bad input with a clear error") {
   huge.workspace_xy_m = Eigen::AlignedBox2f(Eigen::Vector2f(-1e3f, -1e3f), Eigen::Vector2f(1e3f, 1e3f));
   CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>(can_models(), huge).estimate(frame, {{0, 1}}, T),
                        doctest::Contains("grid positions"), InvalidInput);
+  for (void (*edit)(TabletopSettings&) :
+       {+[](TabletopSettings& s) { s.polish_rounds = -1; }, +[](TabletopSettings& s) { s.polish_stride = 0; },
+        +[](TabletopSettings& s) { s.polish_iterations = 0; },
+        +[](TabletopSettings& s) { s.polish_max_distance_m = std::nanf(""); }}) {
+    TabletopSettings s;
+    edit(s);
+    CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>(can_models(), s).estimate(frame, {{0, 1}}, T),
+                         doctest::Contains("polish"), InvalidInput);
+  }
   // Models.
   CHECK_THROWS_WITH_AS(TabletopEstimator<cpu::Backend>({}), doctest::Contains("no models"), InvalidInput);
   Pose bad = Pose::Identity();
@@ -797,10 +806,11 @@ TEST_CASE("the yaw search turns a printed can's label right, untextured models k
                              eval::ModelPoints(g.models[std::size_t(m)].mesh.vertices)) < 0.01);
     }
   }
-  // The search turns the label nearer than ICP alone. Since pixels without a depth reading hide what is
-  // rendered there (TabletopSettings::missing_depth_hides) ICP alone leaves the can at most 4.6 deg off in
-  // these three scenes (before: more than 8.6 deg), the search 3.3 deg.
-  CHECK(worst_on < worst_off);
+  // ICP alone: since the polish (TabletopSettings::polish_rounds, all points at stride 1) it leaves this
+  // can at most 2.5 deg off in these three scenes (before: 4.6 deg, and 8.6 deg before
+  // missing_depth_hides); the search keeps it there, within the 5 deg bound above. Labels turned by a
+  // look-alike yaw, which ICP cannot leave, are test_local_search's and bench_turns'.
+  CHECK(worst_on <= worst_off + 0.0175f);
   // Only the can is searched: requesting the bowl and block alone turns nothing.
   const GeneratedScene g = generated_scene({2, 6, 7}, {1.f, NAN, NAN}, 6);
   const TabletopResult plain = TabletopEstimator<thrust_omp::Backend>(g.tabletop_models)
@@ -862,4 +872,39 @@ TEST_CASE("the yaw search's bad settings are rejected naming the setting") {
   CHECK_FALSE(tabletop_variant(SearchVariant::DepthOnlyC).yaw_search.enabled);
   CHECK_FALSE(tabletop_variant(SearchVariant::Perch).yaw_search.enabled);
   CHECK(tabletop_variant(SearchVariant::Perch2C).yaw_search.enabled);
+}
+
+TEST_CASE("the polish brings the selected poses closer to the truth") {
+  // Generated tables (shadows, lighting, sensor noise and dropout) with the untextured block, the printed
+  // box and a can. The search's refinement (128 points of a stride-4 render, pairs within 4 cm, from the
+  // grid) finds each object but stops a few millimetres short; the polish (all points at stride 1, pairs
+  // within 1 cm) converges.
+  const std::vector<ObjectCount> objects{{0, 1}, {1, 1}, {2, 1}};
+  TabletopSettings off;
+  off.polish_rounds = 0;
+  double sum_off = 0, sum_on = 0;
+  int n = 0, close_off = 0, close_on = 0;  // within 2 mm
+  for (const std::uint64_t seed : {3u, 4u, 5u, 6u}) {
+    const GeneratedScene g = generated_scene({0, 5, 7}, {NAN, NAN, NAN}, seed);
+    const TabletopResult a = TabletopEstimator<thrust_omp::Backend>(g.tabletop_models, off)
+                                 .estimate(g.frame, objects, g.T_cam_world);
+    const TabletopResult r =
+        TabletopEstimator<thrust_omp::Backend>(g.tabletop_models).estimate(g.frame, objects, g.T_cam_world);
+    REQUIRE(a.poses.size() == 3);
+    REQUIRE(r.poses.size() == 3);
+    for (int m = 0; m < 3; ++m) {
+      const Pose gt = g.T_cam_world * g.T_world_obj[std::size_t(m)];
+      const eval::ModelPoints pts(g.models[std::size_t(m)].mesh.vertices);
+      const double e_off = eval::adds_error(pose_of(a, m)->T_cam_obj, gt, pts);
+      const double e_on = eval::adds_error(pose_of(r, m)->T_cam_obj, gt, pts);
+      MESSAGE("seed " << seed << " model " << m << ": ADD-S " << 1000 * e_off << " -> " << 1000 * e_on
+                      << " mm");
+      sum_off += e_off, sum_on += e_on, ++n;
+      close_off += e_off < 0.002, close_on += e_on < 0.002;
+    }
+  }
+  MESSAGE("mean ADD-S " << 1000 * sum_off / n << " -> " << 1000 * sum_on / n << " mm; within 2 mm "
+                        << close_off << " -> " << close_on << " of " << n);
+  CHECK(sum_on < 0.6 * sum_off);     // measured 4.1 -> 2.0 mm
+  CHECK(close_on >= close_off + 3);  // 6 -> 10 of 12
 }

@@ -300,6 +300,10 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ts, TabletopSettings, tree_max_occluding_fraction);
   PERCH2_RW(ts, TabletopSettings, strict_instances);
   PERCH2_RW(ts, TabletopSettings, keep_scored);
+  PERCH2_RW(ts, TabletopSettings, polish_rounds);
+  PERCH2_RW(ts, TabletopSettings, polish_stride);
+  PERCH2_RW(ts, TabletopSettings, polish_max_distance_m);
+  PERCH2_RW(ts, TabletopSettings, polish_iterations);
   PERCH2_RW(ts, TabletopSettings, yaw_search);
   PERCH2_RW(ts, TabletopSettings, table);
 

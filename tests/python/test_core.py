@@ -195,6 +195,7 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     assert t.yaw_search.turns.climb_shift_m == pytest.approx(0.001)
     assert t.yaw_search.turns.fine_stride == 1  # the 3-DoF default; the 6-DoF local search keeps 2
     assert t.missing_depth_hides and t.second_look and t.second_look_margin_m == pytest.approx(0.01)
+    assert t.polish_rounds == 2 and t.polish_stride == 1 and t.polish_max_distance_m == pytest.approx(0.01)
     assert perch2.TurnSearchSettings.geometry_tolerance.__doc__
     t.yaw_search.enabled = False
     assert not t.yaw_search.enabled
