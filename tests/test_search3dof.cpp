@@ -190,6 +190,19 @@ GeneratedScene generated_scene(const std::vector<int>& builtin, const std::vecto
   return g;
 }
 
+/// The scene estimated with `off` and with the default settings; both must place every requested object.
+std::pair<TabletopResult, TabletopResult> estimate_off_and_on(const GeneratedScene& g,
+                                                              const TabletopSettings& off,
+                                                              const std::vector<ObjectCount>& objects) {
+  TabletopResult a = TabletopEstimator<thrust_omp::Backend>(g.tabletop_models, off)
+                         .estimate(g.frame, objects, g.T_cam_world);
+  TabletopResult r =
+      TabletopEstimator<thrust_omp::Backend>(g.tabletop_models).estimate(g.frame, objects, g.T_cam_world);
+  REQUIRE(a.poses.size() == objects.size());
+  REQUIRE(r.poses.size() == objects.size());
+  return {std::move(a), std::move(r)};
+}
+
 /// The yaw of T_world_obj's x axis about the table normal minus the truth's, wrapped to (-pi, pi].
 float yaw_error_rad(const Pose& T_world_obj, const Pose& truth) {
   auto yaw = [](const Pose& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); };
@@ -779,12 +792,7 @@ TEST_CASE("the yaw search turns a printed can's label right, untextured models k
   float worst_off = 0, worst_on = 0;
   for (const float can_yaw : {1.f, 2.9f, 4.6f}) {
     const GeneratedScene g = generated_scene({2, 6, 7}, {can_yaw, NAN, NAN}, 6);
-    const TabletopResult a = TabletopEstimator<thrust_omp::Backend>(g.tabletop_models, off)
-                                 .estimate(g.frame, objects, g.T_cam_world);
-    const TabletopResult r =
-        TabletopEstimator<thrust_omp::Backend>(g.tabletop_models).estimate(g.frame, objects, g.T_cam_world);
-    REQUIRE(a.poses.size() == 3);
-    REQUIRE(r.poses.size() == 3);
+    const auto [a, r] = estimate_off_and_on(g, off, objects);
     const Pose gt = g.T_cam_world * g.T_world_obj[0];
     const double add_off = eval::add_error(pose_of(a, 0)->T_cam_obj, gt, g.models[0].mesh.vertices);
     const double add_on = eval::add_error(pose_of(r, 0)->T_cam_obj, gt, g.models[0].mesh.vertices);
@@ -886,12 +894,7 @@ TEST_CASE("the polish brings the selected poses closer to the truth") {
   int n = 0, close_off = 0, close_on = 0;  // within 2 mm
   for (const std::uint64_t seed : {3u, 4u, 5u, 6u}) {
     const GeneratedScene g = generated_scene({0, 5, 7}, {NAN, NAN, NAN}, seed);
-    const TabletopResult a = TabletopEstimator<thrust_omp::Backend>(g.tabletop_models, off)
-                                 .estimate(g.frame, objects, g.T_cam_world);
-    const TabletopResult r =
-        TabletopEstimator<thrust_omp::Backend>(g.tabletop_models).estimate(g.frame, objects, g.T_cam_world);
-    REQUIRE(a.poses.size() == 3);
-    REQUIRE(r.poses.size() == 3);
+    const auto [a, r] = estimate_off_and_on(g, off, objects);
     for (int m = 0; m < 3; ++m) {
       const Pose gt = g.T_cam_world * g.T_world_obj[std::size_t(m)];
       const eval::ModelPoints pts(g.models[std::size_t(m)].mesh.vertices);
