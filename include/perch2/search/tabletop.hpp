@@ -264,8 +264,8 @@ struct TabletopSettings {
   /// polish_max_distance_m. The search's refinement starts from the grid with a few points of a coarse
   /// render and a wide pair distance (icp_max_points, render.stride, icp): it finds the place but stops a
   /// few millimetres or degrees short, and the tolerant cost cannot tell; a block 5-10 mm off in full
-  /// view was typical. On `perch2 generate`'s seeds 77 / 2020 (bench_tabletop): ADD-S AUC 97.7 -> 98.5 /
-  /// 97.0 -> 97.6, ADD(-S) 95.6 -> 96.7 / 95.3 -> 97.4, for 0.06-0.08 s per image. Not guarded by the cost
+  /// view was typical. On `perch2 generate`'s seeds 77 / 2020 (bench_tabletop): ADD-S AUC 97.7 -> 98.6 /
+  /// 97.0 -> 97.7, ADD(-S) 95.6 -> 97.3 / 95.3 -> 97.2, for 0.05-0.07 s per image. Not guarded by the cost
   /// (only by the acceptance tests): keeping a polished pose only where its cost did not rise kept less
   /// than half the gain. 0 rounds: off.
   int polish_rounds = 2;
