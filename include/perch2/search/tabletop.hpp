@@ -777,16 +777,19 @@ class TabletopEstimator {
     RegistrationResult r = target.icp(sources, seg, icp_settings(f));
     icp_points.resize(cands.size());
     for (std::size_t h = 0; h < cands.size(); ++h) icp_points[h] = std::int64_t(sources.cloud_size(h));
-    const Pose T_world_cam = f.T_cam_world.inverse();
-    for (std::size_t h = 0; h < cands.size(); ++h) {
-      // Back to exact (x, y, yaw): drop the rounding that would tilt the model off the table.
-      const Pose T = T_world_cam * r.T_corr[h] * f.T_cam_world * T_world_obj(cands[h]);
-      const Pose T_world_place = T * models_[cands[h].model].T_place_obj->inverse();
-      cands[h].x = T_world_place.translation().x(), cands[h].y = T_world_place.translation().y();
-      cands[h].yaw = std::atan2(T_world_place.linear()(1, 0), T_world_place.linear()(0, 0));
-    }
+    for (std::size_t h = 0; h < cands.size(); ++h) cands[h] = corrected(f, cands[h], r.T_corr[h]);
     timings.refine += tabletop_detail::seconds_since(t);
     return r;
+  }
+
+  /// A candidate moved by an ICP correction (camera frame), back to exact (x, y, yaw): the rounding that
+  /// would tilt the model off the table is dropped.
+  Candidate corrected(const Frame& f, Candidate c, const Pose& T_corr_cam) const {
+    const Pose T = f.T_cam_world.inverse() * T_corr_cam * f.T_cam_world * T_world_obj(c);
+    const Pose T_world_place = T * models_[c.model].T_place_obj->inverse();
+    c.x = T_world_place.translation().x(), c.y = T_world_place.translation().y();
+    c.yaw = std::atan2(T_world_place.linear()(1, 0), T_world_place.linear()(0, 0));
+    return c;
   }
 
   /// The refined candidates whose ICP matched at least min_icp_inlier_fraction of the points it aligned.
@@ -849,6 +852,28 @@ class TabletopEstimator {
     return out;
   }
 
+  /// Scored candidates: cost and, when occluders are marked, hidden share; score = what selection ranks by.
+  struct Scored {
+    std::vector<Candidate> cands;
+    std::vector<float> scores, hidden;  ///< hidden: empty unless occluders are marked (hidden_shares)
+    std::vector<CostBreakdown> costs;
+  };
+
+  /// Renders and scores candidates at score_stride as Parallel selection ranks them: cost total plus
+  /// hidden_point_weight times the hidden share (with occluders and hidden_term).
+  Scored score_for_selection(const Frame& f, std::vector<Candidate> cands, const Occluders* occ,
+                             bool hidden_term, TabletopTimings& timings) const {
+    Scored out;
+    if (!cands.empty())
+      out.costs = score(f, cands, render(f, cands, settings_.score_stride, occ, timings), timings);
+    out.hidden = hidden_shares(f, cands, out.costs, hidden_term && occ != nullptr, timings);
+    for (std::size_t h = 0; h < cands.size(); ++h)
+      out.scores.push_back(out.costs[h].total +
+                           (out.hidden.empty() ? 0.f : settings_.hidden_point_weight * out.hidden[h]));
+    out.cands = std::move(cands);
+    return out;
+  }
+
   bool yaw_search_runs() const {
     return settings_.yaw_search.enabled && settings_.mode != SearchMode::BruteForceIcp;
   }
@@ -901,16 +926,11 @@ class TabletopEstimator {
       if (cands[i].yaw != start[i].yaw || cands[i].x != start[i].x || cands[i].y != start[i].y)
         moved.push_back(cands[i]), moved_pose.push_back(pose_of[i]);
     if (!moved.empty()) {
-      const std::vector<CostBreakdown> costs =
-          score(f, moved, render(f, moved, settings_.score_stride, occ, result.timings), result.timings);
-      const std::vector<float> hidden = settings_.mode == SearchMode::Parallel
-                                            ? hidden_shares(f, moved, costs, occ != nullptr, result.timings)
-                                            : std::vector<float>{};
+      const Scored sc =
+          score_for_selection(f, moved, occ, settings_.mode == SearchMode::Parallel, result.timings);
       for (std::size_t j = 0; j < moved.size(); ++j) {
         TabletopPose& p = result.poses[moved_pose[j]];
-        const float score =
-            costs[j].total + (hidden.empty() ? 0.f : settings_.hidden_point_weight * hidden[j]);
-        p = make_pose(f, moved[j], p.instance, score, costs[j]);
+        p = make_pose(f, moved[j], p.instance, sc.scores[j], sc.costs[j]);
       }
     }
     result.timings.yaw += seconds_since(t);
@@ -935,25 +955,15 @@ class TabletopEstimator {
       const auto t = Clock::now();
       const RegistrationResult r =
           f.registration->icp(rendered, std::vector<std::int32_t>(cands.size(), 0), icp);
-      const Pose T_world_cam = f.T_cam_world.inverse();
-      for (std::size_t h = 0; h < cands.size(); ++h) {
-        if (rendered.cloud_size(h) < std::size_t(s.min_rendered_points)) continue;
-        const Pose T = T_world_cam * r.T_corr[h] * f.T_cam_world * T_world_obj(cands[h]);
-        const Pose T_world_place = T * models_[cands[h].model].T_place_obj->inverse();
-        cands[h].x = T_world_place.translation().x(), cands[h].y = T_world_place.translation().y();
-        cands[h].yaw = std::atan2(T_world_place.linear()(1, 0), T_world_place.linear()(0, 0));
-      }
+      for (std::size_t h = 0; h < cands.size(); ++h)
+        if (rendered.cloud_size(h) >= std::size_t(s.min_rendered_points))
+          cands[h] = corrected(f, cands[h], r.T_corr[h]);
       result.timings.refine += seconds_since(t);
     }
-    const std::vector<CostBreakdown> costs =
-        score(f, cands, render(f, cands, s.score_stride, occ, result.timings), result.timings);
-    const std::vector<float> hidden = hidden_shares(f, cands, costs, occ != nullptr, result.timings);
-    for (std::size_t k = 0; k < cands.size(); ++k) {
-      TabletopPose& p = result.poses[k];
-      if (!acceptable(costs[k])) continue;
-      const float score = costs[k].total + (hidden.empty() ? 0.f : s.hidden_point_weight * hidden[k]);
-      p = make_pose(f, cands[k], p.instance, score, costs[k]);
-    }
+    const Scored sc = score_for_selection(f, cands, occ, true, result.timings);
+    for (std::size_t k = 0; k < cands.size(); ++k)
+      if (acceptable(sc.costs[k]))
+        result.poses[k] = make_pose(f, cands[k], result.poses[k].instance, sc.scores[k], sc.costs[k]);
   }
 
   bool acceptable(const CostBreakdown& b) const {
@@ -1101,13 +1111,6 @@ class TabletopEstimator {
     return chosen;
   }
 
-  /// Candidates refined (against `target`), pruned and scored as the parallel modes score them.
-  struct Scored {
-    std::vector<Candidate> cands;
-    std::vector<float> scores, hidden;  ///< hidden: empty unless occluders are marked (hidden_shares)
-    std::vector<CostBreakdown> costs;
-  };
-
   Scored refine_and_score(const Frame& f, const typename Backend::Registration& target,
                           std::vector<Candidate> cands, const std::vector<ObjectCount>& objects,
                           TabletopResult& result) const {
@@ -1122,9 +1125,9 @@ class TabletopEstimator {
     if (s.refine || bf) icp = refine(f, target, cands, occ, points, icp_points, result.timings);
     result.hypotheses_refined += cands.size();
     if (s.refine && !bf) cands = well_supported(cands, icp, icp_points);
-    out.scores.assign(cands.size(), 0.f);
-    out.costs.resize(cands.size());
     if (bf) {  // truncated mean squared distance: points without a correspondence count as the cap
+      out.scores.assign(cands.size(), 0.f);
+      out.costs.resize(cands.size());
       const float cap2 = s.icp.max_correspondence_distance_m * s.icp.max_correspondence_distance_m;
       for (std::size_t h = 0; h < cands.size(); ++h) {
         const float n = float(points[h]), in = float(icp.inliers[h]);
@@ -1137,14 +1140,7 @@ class TabletopEstimator {
       cands = dedupe(cands, s.dedupe_xy_m, s.dedupe_yaw_rad, yaw_symmetric_);
       if (s.coarse_score_stride > s.score_stride && !cands.empty())
         cands = best_coarse(f, cands, objects, occ, result);
-      out.scores.assign(cands.size(), 0.f);
-      out.costs.clear();
-      if (!cands.empty())
-        out.costs = score(f, cands, render(f, cands, s.score_stride, occ, result.timings), result.timings);
-      out.hidden = hidden_shares(f, cands, out.costs, occ != nullptr, result.timings);
-      for (std::size_t h = 0; h < cands.size(); ++h)
-        out.scores[h] =
-            out.costs[h].total + (out.hidden.empty() ? 0.f : s.hidden_point_weight * out.hidden[h]);
+      out = score_for_selection(f, cands, occ, true, result.timings);
     }
     result.hypotheses_scored += cands.size();
     keep_scored(f, cands, out.scores, out.costs, result);
