@@ -2,7 +2,7 @@
 """Checks that the README and docs/*.md still hold: every relative link resolves and every code block runs.
 
     python3 tests/docs_check.py --cli build/examples/perch2 --build-dir build --source-dir . \
-        --python .venv/bin/python [--page docs/cli.md] [--links-only] [--keep]
+        --python .venv/bin/python [--page docs/cli.md] [--links-only] [--verbose]
 
 Links: every relative link or image of a page must name an existing file, and a `#anchor` a heading of the
 target page (GitHub's slugs). Blocks: each page's fenced blocks run in order in one fresh work directory per
@@ -15,7 +15,8 @@ so commands read as they would from the repository root):
   ```python                     through that Python
   ```cpp / ```c++               a block with a main() is compiled against the build tree (g++, the public
                                 include folders, perch2's libraries) and run without arguments; any other
-                                block is compiled with -fsyntax-only
+                                block is compiled with -fsyntax-only. Compiles run in the background, one
+                                at a time, while the other blocks run
   ```text and other languages   shown, not run (output samples, CMake, JSON)
 
 A block that cannot run here says why in an HTML comment on the line before its fence:
@@ -197,36 +198,65 @@ class Runner:
         os.symlink(self.build, os.path.join(d, "build"))
         return d
 
-    def run(self, block, cwd, n):
-        """Runs one block; returns (ok, seconds, output tail)."""
+    def cpp_commands(self, block, source):
+        """The compile command for a C++ block, and the executable (None: a fragment, -fsyntax-only)."""
+        flags = [f"-I{p}" for p in self.includes] + [x for p in self.system_includes for x in ("-isystem", p)]
+        base = [self.cxx, "-std=c++17", "-fopenmp"] + flags
+        if re.search(r"\bint\s+main\s*\(", block.text):
+            exe = source[:-len(".cpp")]
+            link = [f"-L{d}" for d in self.lib_dirs] + [f"-Wl,-rpath,{d}" for d in self.lib_dirs]
+            return base + ["-O1", source, "-o", exe] + link + [f"-l{l}" for l in self.libs], exe
+        return base + ["-fsyntax-only", source], None
+
+    def start_compiles(self, jobs):
+        """Compiles every C++ block in the background (one at a time), so that compiling overlaps the other
+        blocks' runs; jobs: (block, source path). run() waits for a block's compile."""
+        self.compiles = {}
+        def work():
+            for block, source in jobs:
+                cmd, exe = self.cpp_commands(block, source)
+                t0 = time.time()
+                try:
+                    p = subprocess.run(cmd, cwd=os.path.dirname(source), env=self.env, stdout=subprocess.PIPE,
+                                       stderr=subprocess.STDOUT, timeout=BLOCK_TIMEOUT_S)
+                    result = (p.returncode == 0, p.stdout.decode("utf-8", "replace"), time.time() - t0, exe)
+                except subprocess.TimeoutExpired:
+                    result = (False, f"compile timed out after {BLOCK_TIMEOUT_S} s", time.time() - t0, exe)
+                self.compiles[source].put(result)
+        import queue
+        import threading
+        for _, source in jobs:
+            self.compiles[source] = queue.Queue()
+        threading.Thread(target=work, daemon=True).start()
+
+    def run(self, block, cwd, n, source=None):
+        """Runs one block; returns (ok, seconds, output)."""
         t0 = time.time()
-        if block.lang in RUN_SHELL:
+        if block.lang in RUN_CPP:
+            ok, out, compile_s, exe = self.compiles[source].get()
+            out = f"(compiled in {compile_s:.0f} s)\n" + out
+            if not ok:
+                return False, time.time() - t0, "compile failed\n" + out
+            if exe is None:
+                return True, time.time() - t0, out
+            cmds = [[exe]]
+        elif block.lang in RUN_SHELL:
             text = block.text
             if block.lang == "console":
                 text = "\n".join(l[2:] for l in text.split("\n") if l.startswith("$ ")) + "\n"
             cmds = [["bash", "-euo", "pipefail", "-c", text]]
-        elif block.lang in RUN_PYTHON:
+            out = ""
+        else:
             script = os.path.join(cwd, f"block_{n:02d}.py")
             open(script, "w").write(block.text)
             cmds = [[self.a.python, script]]
-        else:
-            source = os.path.join(cwd, f"block_{n:02d}.cpp")
-            open(source, "w").write(block.text)
-            flags = [f"-I{p}" for p in self.includes] + [x for p in self.system_includes for x in ("-isystem", p)]
-            base = [self.cxx, "-std=c++17", "-fopenmp"] + flags
-            if re.search(r"\bint\s+main\s*\(", block.text):
-                exe = os.path.join(cwd, f"block_{n:02d}")
-                link = [f"-L{d}" for d in self.lib_dirs] + [f"-Wl,-rpath,{d}" for d in self.lib_dirs]
-                cmds = [base + ["-O1", source, "-o", exe] + link + [f"-l{l[0:]}" for l in self.libs], [exe]]
-            else:
-                cmds = [base + ["-fsyntax-only", source]]
-        out = ""
+            out = ""
         for cmd in cmds:
             try:
                 p = subprocess.run(cmd, cwd=cwd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                    timeout=BLOCK_TIMEOUT_S)
             except subprocess.TimeoutExpired:
-                return False, time.time() - t0, f"timed out after {BLOCK_TIMEOUT_S} s"
+                return False, time.time() - t0, out + f"timed out after {BLOCK_TIMEOUT_S} s"
             out += p.stdout.decode("utf-8", "replace")
             if p.returncode != 0:
                 return False, time.time() - t0, f"exit status {p.returncode}\n" + out
@@ -272,20 +302,31 @@ def main():
     if not a.links_only:
         runner = Runner(a)
         t_all = time.time()
+        todo, compiles = [], []  # (page, work dir, [(n, block, source)]) in order; C++ sources to compile
         for rel in pages:
-            cwd = None
-            for n, b in enumerate(parsed[rel]):
-                runnable = b.lang in RUN_SHELL | RUN_PYTHON | RUN_CPP
+            runnable = [(n, b) for n, b in enumerate(parsed[rel])
+                        if b.skip is None and b.lang in RUN_SHELL | RUN_PYTHON | RUN_CPP]
+            for b in parsed[rel]:
                 if b.skip:
                     skipped.append((b, b.skip))
-                    continue
-                if b.skip == "" or not runnable:
-                    if b.lang:
-                        shown.append(b)
-                    continue
-                if cwd is None:
-                    cwd = runner.workdir(rel)
-                ok, seconds, out = runner.run(b, cwd, n)
+                elif b.skip is None and b.lang and b.lang not in RUN_SHELL | RUN_PYTHON | RUN_CPP:
+                    shown.append(b)
+            if not runnable:
+                continue
+            cwd = runner.workdir(rel)
+            items = []
+            for n, b in runnable:
+                source = None
+                if b.lang in RUN_CPP:
+                    source = os.path.join(cwd, f"block_{n:02d}.cpp")
+                    open(source, "w").write(b.text)
+                    compiles.append((b, source))
+                items.append((n, b, source))
+            todo.append((rel, cwd, items))
+        runner.start_compiles(compiles)
+        for rel, cwd, items in todo:
+            for n, b, source in items:
+                ok, seconds, out = runner.run(b, cwd, n, source)
                 status = "ok" if ok else "FAILED"
                 print(f"  {status:6} {seconds:6.1f} s  {b.where()} ({b.lang})", flush=True)
                 if a.verbose or not ok:
@@ -293,7 +334,8 @@ def main():
                     print("\n".join("           | " + l for l in tail))
                 ran.append((b, seconds))
                 if not ok:
-                    failures.append(f"{b.where()}: the {b.lang} block failed ({out.strip().splitlines()[0] if out.strip() else 'no output'})")
+                    first = out.strip().splitlines()[0] if out.strip() else "no output"
+                    failures.append(f"{b.where()}: the {b.lang} block failed ({first})")
         print(f"blocks: {len(ran)} run in {time.time() - t_all:.0f} s, {len(skipped)} skipped, "
               f"{len(shown)} shown only (text, cmake, json, ...)")
         for b, reason in skipped:
