@@ -21,6 +21,8 @@ so commands read as they would from the repository root):
 
 A block that cannot run here says why in an HTML comment on the line before its fence:
     <!-- docs-check: skip (needs a GPU) -->
+and a block that needs an optional Python module says which, to be skipped (with that reason) without it:
+    <!-- docs-check: needs python module ray -->
 A skip without a reason, or a fence without a language, is a failure. The summary lists blocks run, skipped
 (with their reasons) and failed; the exit status is 1 on any failure. Standard library only.
 """
@@ -38,6 +40,7 @@ RUN_SHELL = {"sh", "bash", "shell", "console"}
 RUN_PYTHON = {"python", "py", "python3"}
 RUN_CPP = {"cpp", "c++", "cxx"}
 SKIP_RE = re.compile(r"^\s*<!--\s*docs-check:\s*skip\b(.*?)-->\s*$")
+NEEDS_RE = re.compile(r"^\s*<!--\s*docs-check:\s*needs python module\s+([A-Za-z0-9_.]+)\s*-->\s*$")
 FENCE_RE = re.compile(r"^(\s*)(`{3,}|~{3,})\s*([^`\s]*)\s*.*$")
 LINK_RE = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
 HEADING_RE = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
@@ -45,8 +48,9 @@ BLOCK_TIMEOUT_S = 600
 
 
 class Block:
-    def __init__(self, page, line, lang, text, skip):
+    def __init__(self, page, line, lang, text, skip, needs=None):
         self.page, self.line, self.lang, self.text, self.skip = page, line, lang, text, skip
+        self.needs = needs  # an optional Python module the block needs (skipped, saying so, without it)
 
     def where(self):
         return f"{self.page}:{self.line}"
@@ -75,20 +79,22 @@ def parse(path, rel):
             problems.append(f"{rel}:{start + 1}: unclosed code fence")
         i += 1
         # The skip note: the last non-blank line before the fence.
-        skip = None
+        # The notes on the lines right before the fence (blank lines between are allowed).
+        skip, needs = None, None
         k = start - 1
-        while k >= 0 and not lines[k].strip():
-            k -= 1
-        if k >= 0:
-            s = SKIP_RE.match(lines[k])
+        while k >= 0 and (not lines[k].strip() or SKIP_RE.match(lines[k]) or NEEDS_RE.match(lines[k])):
+            s, n = SKIP_RE.match(lines[k]), NEEDS_RE.match(lines[k])
             if s:
                 reason = s.group(1).strip()
                 if reason.startswith("(") and reason.endswith(")"):
                     reason = reason[1:-1].strip()
                 skip = reason if reason else ""
+            if n:
+                needs = n.group(1)
+            k -= 1
         if not lang:
             problems.append(f"{rel}:{start + 1}: a code fence without a language (use ```text for output)")
-        blocks.append(Block(rel, start + 1, lang, "\n".join(body) + "\n", skip))
+        blocks.append(Block(rel, start + 1, lang, "\n".join(body) + "\n", skip, needs))
     return blocks, prose, problems
 
 
@@ -302,6 +308,16 @@ def main():
     if not a.links_only:
         runner = Runner(a)
         t_all = time.time()
+        have = {}
+        for rel in pages:
+            for b in parsed[rel]:
+                if b.needs and b.skip is None:
+                    if b.needs not in have:
+                        have[b.needs] = subprocess.run([a.python, "-c", f"import {b.needs}"], env=runner.env,
+                                                       stdout=subprocess.DEVNULL,
+                                                       stderr=subprocess.DEVNULL).returncode == 0
+                    if not have[b.needs]:
+                        b.skip = f"needs the Python module {b.needs}, which {a.python} does not have"
         todo, compiles = [], []  # (page, work dir, [(n, block, source)]) in order; C++ sources to compile
         for rel in pages:
             runnable = [(n, b) for n, b in enumerate(parsed[rel])
