@@ -444,7 +444,7 @@ TEST_CASE("6-DoF scene: a striped ball of a can's colours is not taken for the c
   const std::string root = test::temp_path("scene6dof_seed2020");
   if (!std::filesystem::exists(root + "/test_targets_bop19.json")) {
     synth::DatasetSettings d;
-    d.num_scenes = 18, d.images_per_scene = 1, d.seed = 2020;  // scene s depends only on (seed, s)
+    d.first_scene = 18, d.num_scenes = 1, d.images_per_scene = 1, d.seed = 2020;  // scene s: (seed, s) alone
     d.scene.mode = synth::Mode::SixDof;
     synth::generate_dataset(synth::builtin_models(), d, root);
   }

@@ -598,6 +598,15 @@ TEST_CASE("generated datasets are deterministic for a seed, and 6-DoF mode write
   CHECK(fd.at("test/000001/rgb/000000.png") == fa.at("test/000001/rgb/000000.png"));
   CHECK(fd.at("test/000001/scene_gt.json") == fa.at("test/000001/scene_gt.json"));
   CHECK(fd.count("test/000002/scene_gt.json") == 1);
+  // Nor on the scenes before it: scene 2 alone (first_scene) is scene 2 of the two.
+  s.first_scene = 2, s.num_scenes = 1;
+  const fs::path e = temp_path("synth_det_e");
+  fs::remove_all(e);
+  generate_dataset(models, s, e.string());
+  const auto fe = files(e);
+  CHECK(fe.count("test/000001/scene_gt.json") == 0);
+  CHECK(fe.at("test/000002/rgb/000000.png") == fd.at("test/000002/rgb/000000.png"));
+  CHECK(fe.at("test/000002/scene_gt.json") == fd.at("test/000002/scene_gt.json"));
 }
 
 TEST_CASE("user models from a folder tree: units guessed per file, re-centred, no symmetries") {
@@ -758,6 +767,9 @@ TEST_CASE("bad inputs are rejected with the input named") {
   s.num_scenes = 0;
   CHECK_THROWS_WITH_AS(generate_dataset(models, s, out), doctest::Contains("num_scenes"), InvalidInput);
   s.num_scenes = 1;
+  s.first_scene = 0;
+  CHECK_THROWS_WITH_AS(generate_dataset(models, s, out), doctest::Contains("first_scene"), InvalidInput);
+  s.first_scene = 1;
   CHECK_THROWS_AS(generate_dataset({}, s, out), InvalidInput);
   auto twins = models;
   twins[1].obj_id = 1;

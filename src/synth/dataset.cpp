@@ -44,6 +44,7 @@ void save_mask(const fs::path& path, const MaskImage& mask) {
 void check(const DatasetSettings& s, const std::vector<ObjectModel>& models) {
   if (models.empty()) throw InvalidInput("models", "no object models to generate scenes with");
   if (s.num_scenes < 1) throw InvalidInput("DatasetSettings::num_scenes", "must be >= 1");
+  if (s.first_scene < 1) throw InvalidInput("DatasetSettings::first_scene", "must be >= 1");
   if (s.images_per_scene < 1) throw InvalidInput("DatasetSettings::images_per_scene", "must be >= 1");
   if (s.split.empty() || s.detections_file.empty())
     throw InvalidInput("DatasetSettings::split", "names must not be empty");
@@ -82,7 +83,7 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
   };
   json targets = json::array(), detections = json::array();
   const int total = s.num_scenes * s.images_per_scene;
-  for (int scene_id = 1; scene_id <= s.num_scenes; ++scene_id) {
+  for (int scene_id = s.first_scene; scene_id < s.first_scene + s.num_scenes; ++scene_id) {
     Rng scene_rng = Rng::stream(s.seed, std::uint64_t(scene_id));
     const Scene scene = compose_scene(models, s.scene, scene_rng);
     const SceneRenderer renderer(models, scene);

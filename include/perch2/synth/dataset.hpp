@@ -19,7 +19,10 @@
 namespace perch2::synth {
 
 struct DatasetSettings {
-  int num_scenes = 1;        ///< scenes 000001 ... (each a different arrangement), >= 1
+  int num_scenes = 1;  ///< scenes first_scene ... (each a different arrangement), >= 1
+  /// The first scene's id (>= 1). Scene s depends only on (seed, s), so scene 18 of a seed can be had
+  /// without generating scenes 1 to 17.
+  int first_scene = 1;
   int images_per_scene = 4;  ///< viewpoints per scene (image ids 0 ...), >= 1
   std::uint64_t seed = 0;    ///< everything is a function of the seed; scene s depends only on (seed, s)
   std::string split = "test";
