@@ -1,4 +1,5 @@
-"""The Python examples (examples/python/) run and say what they should, on the generated datasets."""
+"""The Python examples (examples/python/) run and say what they should, on the generated datasets (the
+README's and docs' Python blocks run in the docs check, tests/docs_check.py)."""
 
 import os
 import pathlib
@@ -44,23 +45,3 @@ def test_render_hypotheses(tmp_out):
         assert "matplotlib is not installed: plot skipped" in out
     else:
         assert (tmp_out / "h.png").exists()
-
-
-
-def readme_python_blocks():
-    text = (EXAMPLES.parents[1] / "README.md").read_text()
-    section = text[text.index("## Python\n"):text.index("## Command-line tool\n")]
-    return [b.split("```", 1)[0] for b in section.split("```python\n")[1:]]
-
-
-def test_the_readme_python_examples_run(dataset_6dof, tmp_out):
-    dets = target_detections(dataset_6dof, tmp_out / "dets.json")
-    blocks = readme_python_blocks()
-    assert len(blocks) == 2
-    for k, code in enumerate(blocks):
-        code = code.replace('"/data/lm/detections.json"', repr(dets)).replace('"/data/lm"', repr(str(dataset_6dof)))
-        code = code.replace('"results.csv"', repr(str(tmp_out / "readme.csv")))
-        script = tmp_out / f"readme_{k}.py"
-        script.write_text(code)
-        out = run(sys.executable, script).stdout
-        assert ("auc_add_or_adds" in out) if k == 0 else (len(out.splitlines()) >= 4), out
