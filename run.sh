@@ -13,7 +13,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 
 DEPS=(cmake make g++ pkg-config libeigen3-dev libflann-dev liblz4-dev libopencv-dev libtinyobjloader-dev
-      doctest-dev nlohmann-json3-dev)
+      doctest-dev nlohmann-json3-dev ccache)
 # Thrust/CUB/libcu++ for the CPU build of the Thrust backend: the CUDA toolkit ships them (CCCL); without a
 # toolkit CMake takes Debian's copies.
 SYSTEM_CCCL=(libthrust-dev libcub-dev libcu++-dev)
@@ -93,9 +93,20 @@ use_nvcc() {
   command -v nvcc >/dev/null || { echo "this command needs nvcc (the CUDA toolkit)" >&2; exit 1; }
 }
 
+# A compiler cache shared by every build folder: CI's builds (build, build-system-cccl, build-gpu) compile
+# most files with the same flags, and a rebuild after a change recompiles only what the change touched.
+# Paths are hashed relative to the checkout, so clones in other folders share it too.
+use_ccache() {
+  command -v ccache >/dev/null || return 0
+  export CMAKE_CXX_COMPILER_LAUNCHER=${CMAKE_CXX_COMPILER_LAUNCHER-ccache}
+  export CMAKE_CUDA_COMPILER_LAUNCHER=${CMAKE_CUDA_COMPILER_LAUNCHER-ccache}
+  export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$PWD} CCACHE_NOHASHDIR=${CCACHE_NOHASHDIR-1}
+}
+
 build() {  # build DIR [cmake options...]
   local dir=$1
   shift
+  use_ccache
   cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=Release "$@" | { grep '^-- perch2:' || true; }  # e.g. which CCCL
   cmake --build "$dir" -j"$JOBS"
 }
@@ -166,6 +177,7 @@ case "$cmd" in
     ;;
   asan)
     install_deps
+    use_ccache
     cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPERCH2_SANITIZE=ON -DPERCH2_WITH_CUDA=OFF \
       -DPERCH2_BUILD_BENCH=OFF -DPERCH2_BUILD_EXAMPLES=OFF >/dev/null
     cmake --build build-asan -j"$JOBS"

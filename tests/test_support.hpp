@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -53,10 +54,15 @@ inline std::string shared_data(const std::string& relative) {
   return "";
 }
 
-/// A fresh path in the test build's temporary folder.
+/// A fresh path in the test build's temporary folder: $PERCH2_TEST_TMP_DIR (ctest sets it to the build's
+/// tests/tmp; an environment variable, not a compile definition, so that builds in other folders compile
+/// the same test sources to the same objects and share a compiler cache), else the system's temp folder.
 inline std::string temp_path(const std::string& name) {
-  std::filesystem::create_directories(PERCH2_TEST_TMP_DIR);
-  return (std::filesystem::path(PERCH2_TEST_TMP_DIR) / name).string();
+  const char* env = std::getenv("PERCH2_TEST_TMP_DIR");
+  const std::filesystem::path dir =
+      env && *env ? std::filesystem::path(env) : std::filesystem::temp_directory_path() / "perch2_tests";
+  std::filesystem::create_directories(dir);
+  return (dir / name).string();
 }
 
 inline void write_file(const std::string& path, const std::string& bytes) {
