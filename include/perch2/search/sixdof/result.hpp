@@ -1,0 +1,78 @@
+// What the 6-DoF search returns: a pose, score and cost per instance (SixDofPose), the counts and timings
+// of every stage (SixDofResult, SixDofTimings), and for estimate_scene() the objects it looks for
+// (SixDofObject) and what it placed and left missing (SixDofSceneResult).
+#pragma once
+
+#include <cstddef>
+#include <optional>
+#include <vector>
+
+#include "perch2/core/pose.hpp"
+#include "perch2/cost/cost.hpp"
+#include "perch2/search/segmentation.hpp"
+
+namespace perch2 {
+
+struct SixDofPose {
+  int instance = 0;  ///< index into the instances given
+  int model = 0;
+  Pose T_cam_obj = Pose::Identity();
+  float score = 0;     ///< in [0, 1], higher is better (see the file comment)
+  bool found = false;  ///< false: no hypothesis showed min_rendered_points (pose = the lowest cost anyway)
+  CostBreakdown cost;
+};
+
+struct SixDofTimings {  ///< seconds, wall clock
+  double observed = 0, proposals = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0;
+  double local = 0;    ///< the local search (its renders and costs are also in render and cost)
+  double fit = 0;      ///< the final surface fit (its re-score's render and cost are in render and cost)
+  double segment = 0;  ///< estimate_scene: the frame's segmentation (plane, components)
+  double explain =
+      0;  ///< estimate_scene: placing objects one by one (its renders and costs also in render, cost)
+};
+
+struct SixDofResult {
+  std::vector<SixDofPose> poses;            ///< one per instance, in input order
+  std::vector<std::size_t> hypotheses;      ///< proposals per instance
+  std::vector<std::size_t> rotations;       ///< rotation proposals per instance (after symmetry)
+  std::vector<std::size_t> depths;          ///< proposal depths per instance
+  std::vector<std::size_t> segment_points;  ///< observed points per instance after trimming
+  std::vector<std::size_t> trimmed_pixels;  ///< mask pixels dropped by the depth-consistency trimming
+  std::size_t hypotheses_total = 0, chunks = 0, chunk_hypotheses = 0;
+  std::size_t second_pass_hypotheses = 0;  ///< hypotheses kept for the second pass (all instances)
+  std::size_t local_candidates = 0;        ///< turned poses the local search rendered and scored
+  std::size_t fits_kept = 0;               ///< instances whose final surface fit was kept (fit_cost_slack)
+  /// First-pass hypotheses refined by GICP after the warm-up's de-duplication (hypotheses_total without it)
+  std::size_t first_pass_distinct = 0;
+  /// Largest chunk's estimated working memory (its rendered points x bytes_per_point), bytes.
+  std::size_t peak_chunk_bytes = 0;
+  SixDofTimings timings;
+};
+
+/// An object estimate_scene() looks for: a model and how many instances of it the frame holds.
+struct SixDofObject {
+  int model = 0;
+  int count = 1;
+};
+
+/// estimate_scene()'s answer.
+struct SixDofSceneResult {
+  /// Placed instances, in placement order; SixDofPose::instance = index into the objects given.
+  std::vector<SixDofPose> poses;
+  std::vector<int> missing;                 ///< per object given: requested instances not placed
+  std::vector<FrameSegment> segments;       ///< the frame's segments (largest first)
+  std::vector<std::size_t> segment_points;  ///< per segment: its readings on the observed grid
+  std::optional<TablePlane> plane;          ///< the support plane, if one was found
+  std::size_t jobs = 0;                     ///< (model, segment or piece) searches, after screening
+  std::size_t screened_out = 0;  ///< jobs whose segment's colours the model lacks (min_colour_fraction)
+  std::size_t candidates = 0;    ///< jobs whose best pose showed min_rendered_points
+  std::size_t rounds = 0;        ///< scoring rounds of the explanation
+  std::size_t refined = 0;   ///< candidates refined again after a neighbour took readings of their segment
+  std::size_t reverted = 0;  ///< of those, how many kept their earlier pose (it explained the scene better)
+  std::size_t residual_segments =
+      0;  ///< segments of the readings left unexplained (SceneSettings::residual_pass)
+  /// The search's counts per job (hypotheses, rotations, depths), segment_points per job group, totals
+  /// and the timings of every stage (segment and explain included); its `poses` is empty.
+  SixDofResult search;
+};
+}  // namespace perch2

@@ -1,0 +1,235 @@
+// estimate_scene()'s jobs (no detector): which model is searched where. A model gets a job on every segment
+// of a compatible size (SceneSettings: not smaller than min_area_fraction of its smallest face, not larger
+// than max_area_faces of its largest), around the segment's box, or, if the segment is too wide or too
+// large for one object (two touching, a distractor on top), around each of its model-sized pieces
+// (segment_pieces: k-means on its readings). Colour screening drops the jobs whose readings show colours
+// the model lacks (screen_colours), before anything is rendered. Each job's GICP targets and J_o's points
+// are its segment and the nearby small ones an occluder may have cut from it (group_segments,
+// group_clouds), or its piece's own readings (with_pieces).
+#pragma once
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <map>
+#include <random>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "perch2/core/observed.hpp"
+#include "perch2/cost/cost.hpp"
+#include "perch2/search/proposals.hpp"
+#include "perch2/search/segmentation.hpp"
+#include "perch2/search/sixdof/context.hpp"
+
+namespace perch2 {
+namespace sixdof_detail {
+
+/// Segment `seg`'s pixels split into `pieces` parts by k-means on their camera-frame points (k-means++
+/// seeding with a fixed seed, so results are deterministic); one mask (full resolution) per part.
+inline std::vector<Image<std::uint8_t>> segment_pieces(const RgbdFrame& frame, const LabelImage& labels,
+                                                       const FrameSegment& seg, int pieces) {
+  const int w = frame.camera.width;
+  std::vector<std::size_t> pix;
+  std::vector<Eigen::Vector3f> pts;
+  const Eigen::Vector4i& b = seg.box_xywh;
+  for (int v = b[1]; v <= b[1] + b[3]; ++v)
+    for (int u = b[0]; u <= b[0] + b[2]; ++u) {
+      const std::size_t i = std::size_t(v) * std::size_t(w) + std::size_t(u);
+      if (labels.data[i] != seg.label) continue;
+      pix.push_back(i);
+      pts.push_back(segmentation_detail::point_at(frame.camera, u, v, frame.depth_m.data[i]));
+    }
+  std::vector<Image<std::uint8_t>> out;
+  if (pieces <= 1 || pts.size() < std::size_t(pieces)) {
+    out.emplace_back(labels.width, labels.height, 0);
+    for (const std::size_t i : pix) out.back().data[i] = 1;
+    return out;
+  }
+  std::mt19937 rng(7);
+  std::vector<Eigen::Vector3f> centre{
+      pts[std::uniform_int_distribution<std::size_t>(0, pts.size() - 1)(rng)]};
+  std::vector<float> d2(pts.size(), INFINITY);
+  while (int(centre.size()) < pieces) {  // k-means++: the next centre with probability ~ squared distance
+    double total = 0;
+    for (std::size_t i = 0; i < pts.size(); ++i)
+      total += d2[i] = std::min(d2[i], (pts[i] - centre.back()).squaredNorm());
+    double r = std::uniform_real_distribution<double>(0, total)(rng);
+    std::size_t pick = 0;
+    while (pick + 1 < pts.size() && (r -= d2[pick]) > 0) ++pick;
+    centre.push_back(pts[pick]);
+  }
+  std::vector<int> owner(pts.size(), 0);
+  for (int it = 0; it < 10; ++it) {
+    std::vector<Eigen::Vector3f> sum(centre.size(), Eigen::Vector3f::Zero());
+    std::vector<int> n(centre.size(), 0);
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      float best = INFINITY;
+      for (std::size_t c = 0; c < centre.size(); ++c)
+        if (const float d = (pts[i] - centre[c]).squaredNorm(); d < best) best = d, owner[i] = int(c);
+      sum[std::size_t(owner[i])] += pts[i], ++n[std::size_t(owner[i])];
+    }
+    for (std::size_t c = 0; c < centre.size(); ++c)
+      if (n[c] > 0) centre[c] = sum[c] / float(n[c]);
+  }
+  out.assign(centre.size(), Image<std::uint8_t>(labels.width, labels.height, 0));
+  for (std::size_t i = 0; i < pix.size(); ++i) out[std::size_t(owner[i])].data[pix[i]] = 1;
+  return out;
+}
+
+/// Drops the jobs whose model lacks the colours of their readings (SceneSettings::min_colour_fraction):
+/// up to colour_samples of each job's readings (its piece's, or its segment's), each matched if some
+/// colour of the model is within tau_c (CIEDE2000, the cost's comparison colours).
+template <class Backend>
+void screen_colours(const Shared<Backend>& sh, const RgbdFrame& frame, const LabelImage& labels,
+                    std::vector<Job>& jobs) {
+  const SceneSettings& ss = sh.settings.scene;
+  const CostSettings& c = sh.settings.cost;
+  std::map<int, std::vector<Lab<float>>> palette;  // per model, its comparison colours
+  // (model, reading's colour bin of 6 bits per channel, as model_colours()): matched
+  std::map<std::pair<int, std::uint32_t>, bool> known;
+  auto matched = [&](int model, std::uint32_t rgb) {
+    const auto [it, fresh] = known.try_emplace({model, rgb & 0xfcfcfcu}, false);
+    if (!fresh) return it->second;
+    auto p = palette.find(model);
+    if (p == palette.end()) {  // one colour per CIELAB cell of 2 units: ~1 unit from any model colour
+      p = palette.emplace(model, std::vector<Lab<float>>{}).first;
+      std::set<std::array<int, 3>> cells;
+      for (const std::uint32_t m : sh.colours[std::size_t(model)]) {
+        const Lab<float> lab = comparison_lab(m, c.shading_invariant);
+        const std::array<int, 3> cell{int(std::floor(lab.L / 2)), int(std::floor(lab.a / 2)),
+                                      int(std::floor(lab.b / 2))};
+        if (cells.insert(cell).second) p->second.push_back(lab);
+      }
+    }
+    const Lab<float> lab = comparison_lab(rgb, c.shading_invariant);
+    for (const Lab<float>& m : p->second)
+      if (ciede2000(lab, m, c.lightness_factor) <= c.tau_c) return it->second = true;
+    return false;
+  };
+  std::map<std::int32_t, std::vector<std::int32_t>> pixels_of;  // segment label -> its pixels
+  for (std::size_t i = 0; i < labels.data.size(); ++i)
+    if (labels.data[i] > 0 && frame.depth_m.data[i] > 0) pixels_of[labels.data[i]].push_back(std::int32_t(i));
+  std::vector<Job> kept;
+  for (Job& job : jobs) {
+    const std::vector<std::int32_t>& px = job.piece_pixels.empty() ? pixels_of[job.label] : job.piece_pixels;
+    const std::size_t n = std::min(px.size(), std::size_t(ss.colour_samples));
+    std::size_t hits = 0;
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::int32_t p = px[k * px.size() / n];
+      hits += matched(job.model, pack_rgb(frame.rgb.data[std::size_t(p)]));
+    }
+    if (n > 0 && float(hits) >= ss.min_colour_fraction * float(n)) kept.push_back(std::move(job));
+  }
+  jobs = std::move(kept);
+}
+
+/// The scene jobs of `model` on segment k (SceneSettings): none if the segment is too small or too
+/// large to hold it, one around the segment's box, or one per model-sized piece of a larger segment
+/// (k-means on its readings).
+template <class Backend>
+void add_scene_jobs(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments, int k,
+                    int model, std::vector<Job>& jobs) {
+  const SceneSettings& ss = sh.settings.scene;
+  const FrameSegment& seg = segments.segments[std::size_t(k)];
+  const auto [small_face, large_face] = sh.face_m2[std::size_t(model)];
+  if (seg.area_m2 < ss.min_area_fraction * small_face) return;
+  if (seg.area_m2 > ss.max_area_faces * large_face) return;  // background for this model
+  const Mesh& mesh = sh.models[std::size_t(model)].mesh;
+  const std::string who = "segment " + std::to_string(k + 1);
+  const int pieces = seg.extent_m > ss.piece_extent_factor * sh.size_m[std::size_t(model)] ||
+                             seg.area_m2 > ss.piece_area_faces * large_face
+                         ? std::clamp(int(std::ceil(seg.area_m2 / large_face)), 2, std::max(ss.max_pieces, 2))
+                         : 1;
+  const std::vector<Image<std::uint8_t>> masks = segment_pieces(frame, segments.labels, seg, pieces);
+  for (const auto& mask : masks) {
+    const std::array<int, 4> b = mask_bbox(mask);
+    if (b[2] < 0) continue;
+    Job job;
+    job.model = model, job.label = std::int32_t(k + 1);  // segment: group_segments()
+    job.box_xywh = {b[0], b[1], b[2], b[3]};
+    job.depths = proposal_depths(frame.depth_m, mask, mesh, sh.settings.proposals, who);
+    if (masks.size() > 1)  // a piece: GICP against its own readings, not its neighbour's in the segment
+      for (std::size_t i = 0; i < mask.data.size(); ++i)
+        if (mask.data[i]) job.piece_pixels.push_back(std::int32_t(i));
+    jobs.push_back(std::move(job));
+  }
+}
+
+/// Per job, the segments its object may span: its own and every segment whose centroid lies within the
+/// model's size of it and that is no larger than the model (an occluder in front splits an object into
+/// such parts). Sets each job's `segment` to its group's index; returns the distinct groups (sorted
+/// labels).
+template <class Backend>
+std::vector<std::vector<std::int32_t>> group_segments(const Shared<Backend>& sh,
+                                                      const FrameSegments& segments, std::vector<Job>& jobs) {
+  std::map<std::vector<std::int32_t>, std::int32_t> index;
+  std::vector<std::vector<std::int32_t>> groups;
+  for (Job& job : jobs) {
+    const float size = sh.size_m[std::size_t(job.model)];
+    const FrameSegment& own = segments.segments[std::size_t(job.label - 1)];
+    std::vector<std::int32_t> members;
+    for (const FrameSegment& other : segments.segments)
+      if (other.label == own.label ||
+          (other.extent_m <= size && (other.centroid_cam - own.centroid_cam).norm() <= size))
+        members.push_back(other.label);
+    auto it = index.find(members);
+    if (it == index.end()) {
+      it = index.emplace(members, std::int32_t(groups.size())).first;
+      groups.push_back(members);
+    }
+    job.segment = it->second;
+  }
+  return groups;
+}
+
+/// GICP's targets: the groups' clouds, then one cloud per piece job of its piece's readings on the
+/// observed grid (Job::target set; a piece without readings there keeps its group's).
+inline CloudBatch with_pieces(const ObservedCloudSettings& o, const RgbdFrame& frame,
+                              const CloudBatch& groups, std::vector<Job>& jobs) {
+  CloudBatch out = groups;
+  for (Job& job : jobs) {
+    job.target = job.segment;
+    if (job.piece_pixels.empty()) continue;
+    const std::size_t before = out.size();
+    const std::int32_t cloud = std::int32_t(out.num_clouds());
+    for (const std::int32_t p : job.piece_pixels) {
+      const int u = p % frame.camera.width, v = p / frame.camera.width;
+      if (u % o.stride || v % o.stride) continue;
+      if (const float d = frame.depth_m(u, v); observed_detail::keep(d, o))
+        observed_detail::append_pixel(frame, u, v, d, cloud, out);
+    }
+    if (out.size() == before) continue;
+    out.offsets.push_back(std::int64_t(out.size()));
+    job.target = cloud;
+  }
+  return out;
+}
+
+/// One observed cloud per group of segment labels (1..S): the readings on the observed grid whose
+/// label is in the group (readings relabelled above S, explained ones, belong to none).
+inline CloudBatch group_clouds(const ObservedCloudSettings& o, const RgbdFrame& frame,
+                               const LabelImage& labels, const std::vector<std::vector<std::int32_t>>& groups,
+                               std::size_t S) {
+  CloudBatch out;
+  std::vector<std::uint8_t> member(S + 1);
+  for (std::size_t g = 0; g < groups.size(); ++g) {
+    std::fill(member.begin(), member.end(), 0);
+    for (const std::int32_t l : groups[g]) member[std::size_t(l)] = 1;
+    for (int v = 0; v < frame.camera.height; v += o.stride)
+      for (int u = 0; u < frame.camera.width; u += o.stride) {
+        const std::int32_t l = labels(u, v);
+        if (l < 1 || std::size_t(l) > S || !member[std::size_t(l)]) continue;
+        if (const float d = frame.depth_m(u, v); observed_detail::keep(d, o))
+          observed_detail::append_pixel(frame, u, v, d, std::int32_t(g), out);
+      }
+    out.offsets.push_back(std::int64_t(out.size()));
+  }
+  return out;
+}
+}  // namespace sixdof_detail
+}  // namespace perch2
