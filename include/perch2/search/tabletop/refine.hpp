@@ -49,6 +49,18 @@ IcpSettings icp_settings(const Context<Backend>& ctx, const Frame<Backend>& f) {
   return s;
 }
 
+/// A candidate moved by an ICP correction (camera frame), back to exact (x, y, yaw): the rounding that
+/// would tilt the model off the table is dropped.
+template <class Backend>
+Candidate corrected(const Context<Backend>& ctx, const Frame<Backend>& f, Candidate c,
+                    const Pose& T_corr_cam) {
+  const Pose T = f.T_cam_world.inverse() * T_corr_cam * f.T_cam_world * T_world_obj(ctx, c);
+  const Pose T_world_place = T * ctx.models[c.model].T_place_obj->inverse();
+  c.x = T_world_place.translation().x(), c.y = T_world_place.translation().y();
+  c.yaw = std::atan2(T_world_place.linear()(1, 0), T_world_place.linear()(0, 0));
+  return c;
+}
+
 /// Renders at the refinement stride, runs (x, y, yaw) ICP against `target` (readings of the frame above the
 /// table: f.registration, or the second look's) and moves every candidate to its result. Returns the ICP
 /// result (BF-ICP selects on it), the rendered point counts and the points ICP aligned.
@@ -70,18 +82,6 @@ RegistrationResult refine(const Context<Backend>& ctx, const Frame<Backend>& f,
   for (std::size_t h = 0; h < cands.size(); ++h) cands[h] = corrected(ctx, f, cands[h], r.T_corr[h]);
   timings.refine += seconds_since(t);
   return r;
-}
-
-/// A candidate moved by an ICP correction (camera frame), back to exact (x, y, yaw): the rounding that
-/// would tilt the model off the table is dropped.
-template <class Backend>
-Candidate corrected(const Context<Backend>& ctx, const Frame<Backend>& f, Candidate c,
-                    const Pose& T_corr_cam) {
-  const Pose T = f.T_cam_world.inverse() * T_corr_cam * f.T_cam_world * T_world_obj(ctx, c);
-  const Pose T_world_place = T * ctx.models[c.model].T_place_obj->inverse();
-  c.x = T_world_place.translation().x(), c.y = T_world_place.translation().y();
-  c.yaw = std::atan2(T_world_place.linear()(1, 0), T_world_place.linear()(0, 0));
-  return c;
 }
 
 /// The refined candidates whose ICP matched at least min_icp_inlier_fraction of the points it aligned.

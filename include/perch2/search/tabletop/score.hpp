@@ -47,6 +47,8 @@ std::vector<float> hidden_shares(const Context<Backend>& ctx, const Frame<Backen
   return out;
 }
 
+/// The cost's request for candidates: their poses and, per model, the footprint prism of J_o's volume
+/// from min_height_m (or the model's top, if lower) up.
 template <class Backend>
 CostRequest cost_request(const Context<Backend>& ctx, const Frame<Backend>& f,
                          const std::vector<Candidate>& cands) {
@@ -57,13 +59,7 @@ CostRequest cost_request(const Context<Backend>& ctx, const Frame<Backend>& f,
   return req;
 }
 
-template <class Backend>
-std::vector<CostBreakdown> score(const Context<Backend>& ctx, const Frame<Backend>& f,
-                                 const std::vector<Candidate>& cands, const CloudBatch& rendered,
-                                 TabletopTimings& timings) {
-  return score(ctx, f, cands, rendered, ctx.settings.cost, timings);
-}
-
+/// The explanation cost (`cs`) of candidates rendered as `rendered`; timed into timings.cost.
 template <class Backend>
 std::vector<CostBreakdown> score(const Context<Backend>& ctx, const Frame<Backend>& f,
                                  const std::vector<Candidate>& cands, const CloudBatch& rendered,
@@ -72,6 +68,14 @@ std::vector<CostBreakdown> score(const Context<Backend>& ctx, const Frame<Backen
   std::vector<CostBreakdown> out = f.cost->evaluate(rendered, cost_request(ctx, f, cands), cs).hypotheses;
   timings.cost += seconds_since(t);
   return out;
+}
+
+/// As above, with settings.cost.
+template <class Backend>
+std::vector<CostBreakdown> score(const Context<Backend>& ctx, const Frame<Backend>& f,
+                                 const std::vector<Candidate>& cands, const CloudBatch& rendered,
+                                 TabletopTimings& timings) {
+  return score(ctx, f, cands, rendered, ctx.settings.cost, timings);
 }
 
 /// Scored candidates: cost and, when occluders are marked, hidden share; score = what selection ranks by.

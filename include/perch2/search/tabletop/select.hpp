@@ -64,6 +64,8 @@ inline float unexplained_fraction(const CostBreakdown& b) {
          float(std::max(1, b.rendered_points + b.observed_in_volume));
 }
 
+/// The acceptance tests of a scored pose: min_rendered_points shown, min_inlier_fraction of them explained,
+/// and (but for BF-ICP, which has no volume) min_observed_in_volume readings in its volume.
 template <class Backend>
 bool acceptable(const Context<Backend>& ctx, const CostBreakdown& b) {
   if (ctx.settings.mode != SearchMode::BruteForceIcp &&
@@ -73,6 +75,7 @@ bool acceptable(const Context<Backend>& ctx, const CostBreakdown& b) {
          float(b.rendered_inliers) >= ctx.settings.min_inlier_fraction * float(b.rendered_points);
 }
 
+/// Whether two candidates' footprints interpenetrate by more than overlap_tolerance_m.
 template <class Backend>
 bool overlaps(const Context<Backend>& ctx, const Candidate& a, const Candidate& b) {
   return penetration_m(posed_polygon(ctx.footprints[a.model], a), posed_polygon(ctx.footprints[b.model], b)) >
