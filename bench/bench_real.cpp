@@ -39,8 +39,8 @@
 
 #include "bench_support.hpp"
 #include "cli_common.hpp"
-#include "perch2/cpu/backend.hpp"
-#include "perch2/cuda/backend.hpp"
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/dataset/runner.hpp"
 #include "perch2/eval/evaluator.hpp"
 #include "perch2/search/sixdof_bop.hpp"

@@ -22,8 +22,8 @@
 #include <vector>
 
 #include "bench_support.hpp"
-#include "perch2/cpu/backend.hpp"
-#include "perch2/cuda/backend.hpp"
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/eval/metrics.hpp"
 #include "perch2/search/tabletop.hpp"
 #include "perch2/synth/synth.hpp"

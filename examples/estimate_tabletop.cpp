@@ -6,7 +6,7 @@
 #include <cstdio>
 #include <string>
 
-#include "perch2/cpu/backend.hpp"
+#include "perch2/cpu/estimators.hpp"
 #include "perch2/search/tabletop.hpp"
 #include "perch2/synth/synth.hpp"
 

@@ -11,6 +11,8 @@
 #include <set>
 #include <vector>
 
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/dataset/runner.hpp"
 #include "perch2/search/segmentation.hpp"
 #include "perch2/search/sixdof.hpp"

@@ -4,6 +4,8 @@
 
 #include <random>
 
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/eval/metrics.hpp"
 #include "perch2/search/tabletop.hpp"
 #include "perch2/synth/synth.hpp"

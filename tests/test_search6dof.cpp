@@ -7,6 +7,8 @@
 #include <utility>
 #include <vector>
 
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/search/proposals.hpp"
 #include "perch2/search/sixdof.hpp"
 #include "perch2/search/sixdof_bop.hpp"

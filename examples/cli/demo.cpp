@@ -12,8 +12,8 @@
 
 #include "cli_common.hpp"
 #include "commands.hpp"
-#include "perch2/cpu/backend.hpp"
-#include "perch2/cuda/backend.hpp"
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/dataset/runner.hpp"
 #include "perch2/eval/metrics.hpp"
 #include "perch2/io/image_io.hpp"

@@ -1,6 +1,8 @@
 // The estimators (3-DoF tabletop and 6-DoF from detections) on the backend chosen by name, their settings
 // and results, and the library's BOP 6-DoF glue (instances from ground truth or detections, result rows).
+#include "perch2/cpu/estimators.hpp"
 #include "common.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/search/sixdof.hpp"
 #include "perch2/search/sixdof_bop.hpp"
 #include "perch2/search/tabletop.hpp"

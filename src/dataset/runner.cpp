@@ -7,8 +7,8 @@
 #include <set>
 #include <variant>
 
-#include "perch2/cpu/backend.hpp"
-#include "perch2/cuda/backend.hpp"
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/estimators.hpp"
 #include "perch2/dataset/detections.hpp"
 #include "perch2/search/tabletop_bop.hpp"
 

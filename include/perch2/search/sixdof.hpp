@@ -114,8 +114,7 @@ class SixDofEstimator {
  public:
   /// Validates the models and uploads them to the backend's renderer. Throws InvalidInput on no models or a
   /// bad mesh.
-  explicit SixDofEstimator(std::vector<SixDofModel> models, SixDofSettings settings = {})
-      : shared_(std::move(models), std::move(settings)) {}
+  explicit SixDofEstimator(std::vector<SixDofModel> models, SixDofSettings settings = {});
 
   const SixDofSettings& settings() const { return shared_.settings; }
   SixDofSettings& settings() { return shared_.settings; }
@@ -124,51 +123,7 @@ class SixDofEstimator {
   /// The pose of every instance. Throws InvalidInput on a malformed frame, missing colour for the RGB-D
   /// cost, no instances, an unknown model, a mask of the wrong size, an empty mask or one without valid
   /// depth, and bad settings.
-  SixDofResult estimate(const RgbdFrame& frame, const std::vector<SixDofInstance>& instances) const {
-    using namespace sixdof_detail;
-    const auto t_start = Clock::now();
-    validate_instances(shared_.settings, shared_.models, frame, instances);
-    const SixDofSettings& s = shared_.settings;
-    SixDofResult result;
-    const std::size_t K = instances.size();
-
-    // ---- observed: labels, trimming, segments (GICP targets, J_o's points), occluders
-    auto t = Clock::now();
-    const ObservedInstances in = observe_instances(shared_, frame, instances, result);
-    const typename Backend::Registration registration(in.observed);
-    const auto first_pass_registration = first_pass_targets(shared_, frame, in.observed);
-    const typename Backend::Cost cost(in.observed);
-    const Occluders occluders{frame.depth_m, in.labels};
-    result.timings.observed = seconds_since(t);
-
-    // ---- one job per instance: its model's proposals around its box, refined against its own segment
-    t = Clock::now();
-    const std::vector<Job> jobs = instance_jobs(shared_, frame, instances, in.labels);
-    result.timings.proposals = seconds_since(t);
-    std::vector<std::int32_t> job_cloud(K), job_label(K);
-    for (std::size_t k = 0; k < K; ++k) job_cloud[k] = std::int32_t(k), job_label[k] = std::int32_t(k + 1);
-    const Context<Backend> ctx{
-        shared_, frame,     occluders, &registration, or_same(first_pass_registration, registration),
-        cost,    job_cloud, job_label, job_cloud};
-    std::vector<std::size_t> points_estimate;  // per job: rendered points bound for the chunk sizes
-    const std::vector<Finalist> finalists =
-        search(ctx, jobs, result.segment_points, points_estimate, result, /*defer_local=*/false);
-
-    // ---- select: each instance's finalist; then the surface fit and the score
-    t = Clock::now();
-    std::vector<SixDofPose> best(K);
-    for (std::size_t k = 0; k < K; ++k) {
-      best[k].instance = int(k), best[k].model = instances[k].model;
-      best[k].T_cam_obj = finalists[k].hypothesis.T_cam_obj;
-      best[k].found = finalists[k].cost.rendered_points >= s.min_rendered_points;
-      best[k].cost = finalists[k].cost;
-    }
-    result.timings.select += seconds_since(t);
-    fit_and_score(ctx, in.labels, points_estimate, best, result);
-    result.poses = std::move(best);
-    result.timings.total = seconds_since(t_start);
-    return result;
-  }
+  SixDofResult estimate(const RgbdFrame& frame, const std::vector<SixDofInstance>& instances) const;
 
   /// The poses of the requested objects in an unsegmented frame (no detector): `objects` says which
   /// models and how many instances of each (BOP's targets give exactly that). See SceneSettings for the
@@ -176,47 +131,107 @@ class SixDofEstimator {
   /// candidate explains is counted in `missing`, never placed on a distractor to fill the count. Throws
   /// InvalidInput on a malformed frame, missing colour for the RGB-D cost, an unknown model, a negative
   /// count and bad settings.
-  SixDofSceneResult estimate_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects) const {
-    using namespace sixdof_detail;
-    const auto t_start = Clock::now();
-    validate_scene(shared_.settings, shared_.models, frame, objects);
-    const SceneSettings& ss = shared_.settings.scene;
-    SixDofSceneResult out;
-    SixDofResult& result = out.search;
-    SceneState scene = scene_state(shared_.models.size(), objects);
-    out.missing = scene.remaining;
-
-    // ---- segment: support plane, connected components, size rule
-    auto t = Clock::now();
-    const float smallest_face = smallest_face_m2(shared_, objects);
-    if (!std::isfinite(smallest_face)) return finish(out, t_start);  // nothing requested
-    const FrameSegments segments = segment_frame(frame, ss.segmentation, smallest_face);
-    out.segments = segments.segments;
-    out.plane = segments.plane;
-    result.timings.segment = seconds_since(t);
-    if (segments.segments.empty()) return finish(out, t_start);
-    scene.labels = segments.labels;
-    scene.segments = segments.segments.size();
-    out.segment_points = explain_segments(shared_, frame, segments, scene, out);
-
-    // ---- the readings left unexplained, segmented again, for the instances still missing
-    if (ss.residual_pass && !scene.placed.empty() &&
-        std::any_of(scene.remaining.begin(), scene.remaining.end(), [](int r) { return r > 0; })) {
-      t = Clock::now();
-      const FrameSegments residual = residual_segments(shared_.settings, frame, scene, smallest_face);
-      result.timings.segment += seconds_since(t);
-      out.residual_segments = residual.segments.size();
-      if (!residual.segments.empty()) explain_segments(shared_, frame, residual, scene, out);
-    }
-
-    // ---- the placed objects on their own readings: final cost, surface fit, score
-    fit_placed(shared_, frame, scene, out);
-    out.missing = scene.remaining;
-    return finish(out, t_start);
-  }
+  SixDofSceneResult estimate_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects) const;
 
  private:
   sixdof_detail::Shared<Backend> shared_;  ///< models, settings, per-model sizes and colours, renderer, fit
 };
+
+// The members are defined out of the class (not inline): a translation unit that includes
+// perch2/cpu/estimators.hpp or perch2/cuda/estimators.hpp (extern template) then compiles none of the
+// passes; the backend libraries hold the one instantiation.
+
+template <class Backend>
+SixDofEstimator<Backend>::SixDofEstimator(std::vector<SixDofModel> models, SixDofSettings settings)
+    : shared_(std::move(models), std::move(settings)) {}
+
+template <class Backend>
+SixDofResult SixDofEstimator<Backend>::estimate(const RgbdFrame& frame,
+                                                const std::vector<SixDofInstance>& instances) const {
+  using namespace sixdof_detail;
+  const auto t_start = Clock::now();
+  validate_instances(shared_.settings, shared_.models, frame, instances);
+  const SixDofSettings& s = shared_.settings;
+  SixDofResult result;
+  const std::size_t K = instances.size();
+
+  // ---- observed: labels, trimming, segments (GICP targets, J_o's points), occluders
+  auto t = Clock::now();
+  const ObservedInstances in = observe_instances(shared_, frame, instances, result);
+  const typename Backend::Registration registration(in.observed);
+  const auto first_pass_registration = first_pass_targets(shared_, frame, in.observed);
+  const typename Backend::Cost cost(in.observed);
+  const Occluders occluders{frame.depth_m, in.labels};
+  result.timings.observed = seconds_since(t);
+
+  // ---- one job per instance: its model's proposals around its box, refined against its own segment
+  t = Clock::now();
+  const std::vector<Job> jobs = instance_jobs(shared_, frame, instances, in.labels);
+  result.timings.proposals = seconds_since(t);
+  std::vector<std::int32_t> job_cloud(K), job_label(K);
+  for (std::size_t k = 0; k < K; ++k) job_cloud[k] = std::int32_t(k), job_label[k] = std::int32_t(k + 1);
+  const Context<Backend> ctx{
+      shared_, frame,     occluders, &registration, or_same(first_pass_registration, registration),
+      cost,    job_cloud, job_label, job_cloud};
+  std::vector<std::size_t> points_estimate;  // per job: rendered points bound for the chunk sizes
+  const std::vector<Finalist> finalists =
+      search(ctx, jobs, result.segment_points, points_estimate, result, /*defer_local=*/false);
+
+  // ---- select: each instance's finalist; then the surface fit and the score
+  t = Clock::now();
+  std::vector<SixDofPose> best(K);
+  for (std::size_t k = 0; k < K; ++k) {
+    best[k].instance = int(k), best[k].model = instances[k].model;
+    best[k].T_cam_obj = finalists[k].hypothesis.T_cam_obj;
+    best[k].found = finalists[k].cost.rendered_points >= s.min_rendered_points;
+    best[k].cost = finalists[k].cost;
+  }
+  result.timings.select += seconds_since(t);
+  fit_and_score(ctx, in.labels, points_estimate, best, result);
+  result.poses = std::move(best);
+  result.timings.total = seconds_since(t_start);
+  return result;
+}
+
+template <class Backend>
+SixDofSceneResult SixDofEstimator<Backend>::estimate_scene(const RgbdFrame& frame,
+                                                           const std::vector<SixDofObject>& objects) const {
+  using namespace sixdof_detail;
+  const auto t_start = Clock::now();
+  validate_scene(shared_.settings, shared_.models, frame, objects);
+  const SceneSettings& ss = shared_.settings.scene;
+  SixDofSceneResult out;
+  SixDofResult& result = out.search;
+  SceneState scene = scene_state(shared_.models.size(), objects);
+  out.missing = scene.remaining;
+
+  // ---- segment: support plane, connected components, size rule
+  auto t = Clock::now();
+  const float smallest_face = smallest_face_m2(shared_, objects);
+  if (!std::isfinite(smallest_face)) return finish(out, t_start);  // nothing requested
+  const FrameSegments segments = segment_frame(frame, ss.segmentation, smallest_face);
+  out.segments = segments.segments;
+  out.plane = segments.plane;
+  result.timings.segment = seconds_since(t);
+  if (segments.segments.empty()) return finish(out, t_start);
+  scene.labels = segments.labels;
+  scene.segments = segments.segments.size();
+  out.segment_points = explain_segments(shared_, frame, segments, scene, out);
+
+  // ---- the readings left unexplained, segmented again, for the instances still missing
+  if (ss.residual_pass && !scene.placed.empty() &&
+      std::any_of(scene.remaining.begin(), scene.remaining.end(), [](int r) { return r > 0; })) {
+    t = Clock::now();
+    const FrameSegments residual = residual_segments(shared_.settings, frame, scene, smallest_face);
+    result.timings.segment += seconds_since(t);
+    out.residual_segments = residual.segments.size();
+    if (!residual.segments.empty()) explain_segments(shared_, frame, residual, scene, out);
+  }
+
+  // ---- the placed objects on their own readings: final cost, surface fit, score
+  fit_placed(shared_, frame, scene, out);
+  out.missing = scene.remaining;
+  return finish(out, t_start);
+}
 
 }  // namespace perch2

@@ -83,8 +83,7 @@ class TabletopEstimator {
  public:
   /// Validates the models and uploads them to the backend's renderer. Throws InvalidInput on no models,
   /// a bad mesh or a bad rest pose.
-  explicit TabletopEstimator(std::vector<TabletopModel> models, TabletopSettings settings = {})
-      : ctx_(std::move(models), std::move(settings)) {}
+  explicit TabletopEstimator(std::vector<TabletopModel> models, TabletopSettings settings = {});
 
   const TabletopSettings& settings() const { return ctx_.settings; }
   TabletopSettings& settings() { return ctx_.settings; }
@@ -102,53 +101,66 @@ class TabletopEstimator {
   /// missing colour for the RGB-D cost, an unknown model, no table visible, an empty scene, and (strict
   /// mode) fewer acceptable poses than requested instances.
   TabletopResult estimate(const RgbdFrame& frame, const std::vector<ObjectCount>& objects,
-                          const std::optional<Pose>& T_cam_world = std::nullopt) const {
-    using namespace tabletop_detail;
-    const TabletopSettings& s = ctx_.settings;
-    const auto t_start = Clock::now();
-    validate_request(ctx_, frame, objects);
-    TabletopResult result;
-    Frame<Backend> f{frame};
-    auto t = Clock::now();
-    find_table(ctx_, f, T_cam_world, result);
-    result.timings.table = seconds_since(t);
-
-    t = Clock::now();
-    prepare_observed(ctx_, f);
-    result.timings.observed = seconds_since(t);
-
-    t = Clock::now();
-    std::vector<Candidate> grid = hypotheses(ctx_, f, objects, result);
-    result.timings.hypotheses = seconds_since(t);
-
-    if (s.mode == SearchMode::Tree) {
-      search_tree(ctx_, f, objects, grid, result);
-    } else {  // Parallel, BruteForceIcp: every hypothesis refined and scored at once
-      Scored scored = refine_and_score(ctx_, f, *f.registration, std::move(grid), objects, result);
-      t = Clock::now();
-      std::vector<std::size_t> chosen =
-          select_parallel(ctx_, f, scored.cands, scored.scores, scored.costs, scored.hidden, objects, result);
-      result.timings.select += seconds_since(t);
-      if (s.mode == SearchMode::Parallel && s.second_look && !result.missing.empty())
-        second_look(ctx_, f, objects, scored, chosen, result);
-      if (s.mode == SearchMode::BruteForceIcp) report_costs(ctx_, f, scored, chosen, result);
-    }
-    if (s.mode == SearchMode::Parallel) polish(ctx_, f, result);
-    if (s.mode != SearchMode::BruteForceIcp) search_yaws(ctx_, f, result);
-
-    if (!result.missing.empty() && s.strict_instances) {
-      const ObjectCount& m = result.missing.front();
-      throw InvalidInput("objects", "model " + std::to_string(m.model) + " ('" +
-                                        ctx_.models[m.model].mesh.name + "'): " + std::to_string(m.count) +
-                                        " requested instance(s) not found (no acceptable, non-overlapping "
-                                        "pose: are fewer instances present than requested?)");
-    }
-    result.timings.total = seconds_since(t_start);
-    return result;
-  }
+                          const std::optional<Pose>& T_cam_world = std::nullopt) const;
 
  private:
   tabletop_detail::Context<Backend> ctx_;  ///< models, settings, renderer, footprints
 };
+
+// The members are defined out of the class (not inline): a translation unit that includes
+// perch2/cpu/estimators.hpp or perch2/cuda/estimators.hpp (extern template) then compiles none of the
+// passes; the backend libraries hold the one instantiation.
+
+template <class Backend>
+TabletopEstimator<Backend>::TabletopEstimator(std::vector<TabletopModel> models, TabletopSettings settings)
+    : ctx_(std::move(models), std::move(settings)) {}
+
+template <class Backend>
+TabletopResult TabletopEstimator<Backend>::estimate(const RgbdFrame& frame,
+                                                    const std::vector<ObjectCount>& objects,
+                                                    const std::optional<Pose>& T_cam_world) const {
+  using namespace tabletop_detail;
+  const TabletopSettings& s = ctx_.settings;
+  const auto t_start = Clock::now();
+  validate_request(ctx_, frame, objects);
+  TabletopResult result;
+  Frame<Backend> f{frame};
+  auto t = Clock::now();
+  find_table(ctx_, f, T_cam_world, result);
+  result.timings.table = seconds_since(t);
+
+  t = Clock::now();
+  prepare_observed(ctx_, f);
+  result.timings.observed = seconds_since(t);
+
+  t = Clock::now();
+  std::vector<Candidate> grid = hypotheses(ctx_, f, objects, result);
+  result.timings.hypotheses = seconds_since(t);
+
+  if (s.mode == SearchMode::Tree) {
+    search_tree(ctx_, f, objects, grid, result);
+  } else {  // Parallel, BruteForceIcp: every hypothesis refined and scored at once
+    Scored scored = refine_and_score(ctx_, f, *f.registration, std::move(grid), objects, result);
+    t = Clock::now();
+    std::vector<std::size_t> chosen =
+        select_parallel(ctx_, f, scored.cands, scored.scores, scored.costs, scored.hidden, objects, result);
+    result.timings.select += seconds_since(t);
+    if (s.mode == SearchMode::Parallel && s.second_look && !result.missing.empty())
+      second_look(ctx_, f, objects, scored, chosen, result);
+    if (s.mode == SearchMode::BruteForceIcp) report_costs(ctx_, f, scored, chosen, result);
+  }
+  if (s.mode == SearchMode::Parallel) polish(ctx_, f, result);
+  if (s.mode != SearchMode::BruteForceIcp) search_yaws(ctx_, f, result);
+
+  if (!result.missing.empty() && s.strict_instances) {
+    const ObjectCount& m = result.missing.front();
+    throw InvalidInput("objects", "model " + std::to_string(m.model) + " ('" +
+                                      ctx_.models[m.model].mesh.name + "'): " + std::to_string(m.count) +
+                                      " requested instance(s) not found (no acceptable, non-overlapping "
+                                      "pose: are fewer instances present than requested?)");
+  }
+  result.timings.total = seconds_since(t_start);
+  return result;
+}
 
 }  // namespace perch2

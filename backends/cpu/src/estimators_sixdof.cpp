@@ -1,0 +1,4 @@
+// SixDofEstimator<cpu::Backend>, compiled once (perch2/cpu/estimators.hpp declares it).
+#include "perch2/cpu/estimators.hpp"
+
+template class perch2::SixDofEstimator<perch2::cpu::Backend>;

@@ -1,0 +1,4 @@
+// TabletopEstimator<thrust_omp::Backend>, compiled once (perch2/cuda/estimators.hpp declares it).
+#include "perch2/cuda/estimators.hpp"
+
+template class perch2::TabletopEstimator<perch2::thrust_omp::Backend>;
