@@ -178,8 +178,10 @@ case "$cmd" in
   asan)
     install_deps
     use_ccache
-    cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPERCH2_SANITIZE=ON -DPERCH2_WITH_CUDA=OFF \
-      -DPERCH2_BUILD_BENCH=OFF -DPERCH2_BUILD_EXAMPLES=OFF >/dev/null
+    # -g1: line tables only, enough for the sanitizers' file:line reports (2-vCPU AMD EPYC VM, beside a
+    # build: backends/cpu/src/knn.cpp compiles in 138 s instead of 169 s with -g, half the object size).
+    cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O2 -g1 -DNDEBUG" \
+      -DPERCH2_SANITIZE=ON -DPERCH2_WITH_CUDA=OFF -DPERCH2_BUILD_BENCH=OFF -DPERCH2_BUILD_EXAMPLES=OFF >/dev/null
     cmake --build build-asan -j"$JOBS"
     UBSAN_OPTIONS=print_stacktrace=1 \
       ctest --test-dir build-asan --output-on-failure -j"$JOBS" -E consumer "$@"
