@@ -129,7 +129,7 @@ case "$cmd" in
   python)
     install_deps
     python_venv
-    echo "== pip install -e . into $VENV (builds the C++ libraries and the extension in build-py-*)"
+    echo "== pip install -e . into $VENV (builds the C++ libraries and the extension in build/py-*)"
     CMAKE_CXX_COMPILER_LAUNCHER=${CMAKE_CXX_COMPILER_LAUNCHER:-$(command -v ccache || true)} \
       "$VENV/bin/python" -m pip install -q --no-build-isolation -e .
     "$VENV/bin/python" -c "import perch2; print('perch2', perch2.__version__, 'backends', perch2.backends())"

@@ -1,6 +1,5 @@
 """`pip wheel .` makes a wheel that installs into a fresh virtual environment and imports there, without
-the build tree (a second compile of the libraries; build-py-<tag> keeps it incremental between runs, and
-beside build/ it shares the compiler cache with it)."""
+the build tree (a second compile of the libraries; build/py-<tag> keeps it incremental between runs)."""
 
 import os
 import pathlib
