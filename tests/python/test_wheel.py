@@ -1,5 +1,5 @@
 """`pip wheel .` makes a wheel that installs into a fresh virtual environment and imports there, without
-the build tree (a second compile of the libraries; build/py-<tag> keeps it incremental between runs)."""
+the build tree (a second compile of the libraries; its build folder keeps it incremental between runs)."""
 
 import os
 import pathlib
@@ -37,8 +37,9 @@ def test_wheel_installs_into_a_clean_venv_and_imports(tmp_path):
     if shutil.which("ccache"):
         env.setdefault("CMAKE_CXX_COMPILER_LAUNCHER", "ccache")  # read by CMake as the launcher's default
     wheels = tmp_path / "wheels"
+    build_dir = ["-C", f"build-dir={env['PERCH2_WHEEL_BUILD_DIR']}"] if env.get("PERCH2_WHEEL_BUILD_DIR") else []
     p = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", wheels,
-                        SOURCE], capture_output=True, text=True, env=env)
+                        *build_dir, SOURCE], capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stdout[-4000:] + p.stderr[-4000:]
     (wheel,) = wheels.glob("perch2-*.whl")
     clean = tmp_path / "venv"
