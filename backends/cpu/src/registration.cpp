@@ -249,8 +249,10 @@ Output register_one(const Indexed& target, const std::vector<Vec3d>* target_norm
           const Mat3d W = weight(std::int64_t(j), i, R_cand);
           Eigen::Matrix<double, 3, 6> J;
           J << skew(p - c_cand), -Mat3d::Identity();
-          H += J.transpose() * W * J;
-          g += J.transpose() * W * d;
+          // J^T W once for H and g (a nested lazy product recomputes it for every coefficient).
+          const Eigen::Matrix<double, 6, 3> JtW = J.transpose() * W;
+          H.noalias() += JtW * J;
+          g.noalias() += JtW * d;
           cost_new += d.dot(W * d);
           sq += d.squaredNorm();
           ++inl;
