@@ -165,16 +165,37 @@ TEST_CASE("load_image reads gray/ when there is no rgb/ (grey cameras, e.g. ITOD
   CHECK(im.frame.rgb(2, 1).b == 77);
 }
 
-TEST_CASE("bop24 targets (images only) make every annotated object of the image a target") {
+TEST_CASE("bop24 targets (images only) set detection: nothing is taken from the ground truth") {
   const std::string root = write_small_dataset("bop_t24");
   fs::remove(root + "/test_targets_bop19.json");
   test::write_text(root + "/test_targets_bop24.json", R"([{"im_id": 5, "scene_id": 2}])");
   const BopDataset d(root);
   CHECK(d.targets_path().find("bop24") != std::string::npos);
-  REQUIRE(d.targets().size() == 2);
-  CHECK(d.targets()[0].obj_id == 7);
-  CHECK(d.targets()[1].obj_id == 8);
-  CHECK(d.targets()[1].inst_count == 1);
+  CHECK(d.target_task() == TargetTask::Detection);
+  CHECK(d.targets().empty());  // not the annotated objects and counts: a detector is not told them
+  CHECK(d.target_images() == std::vector<std::pair<int, int>>{{2, 5}});
+  CHECK(run_images(d) == std::vector<std::pair<int, int>>{{2, 5}});
+  CHECK(d.info(2, 5).gt.size() == 2);  // the evaluator's view: the ground truth is read
+
+  // An estimator's view: the ground truth is not read, and need not exist.
+  DatasetOptions no_gt;
+  no_gt.ground_truth = false;
+  CHECK(BopDataset(root, no_gt).info(2, 5).gt.empty());
+  fs::remove(root + "/test/000002/scene_gt.json");
+  fs::remove(root + "/test/000002/scene_gt_info.json");
+  fs::remove_all(root + "/test/000002/mask_visib");
+  const BopDataset blind(root, no_gt);
+  CHECK(run_images(blind) == std::vector<std::pair<int, int>>{{2, 5}});
+  ImageLoadOptions all_parts;
+  all_parts.masks = true;
+  const BopImage im = blind.load_image(2, 5, all_parts);
+  CHECK(im.masks_visib.empty());
+  CHECK(im.frame.depth_m.width == im.frame.camera.width);
+
+  test::write_text(
+      root + "/test_targets_bop24.json",
+      R"([{"im_id": 5, "scene_id": 2}, {"im_id": 5, "scene_id": 2, "obj_id": 7, "inst_count": 1}])");
+  CHECK(error_of([&] { BopDataset mixed(root, no_gt); }).find("mixes image-only") != std::string::npos);
   test::write_text(root + "/test_targets_bop24.json", R"([{"im_id": 6, "scene_id": 2}])");
   std::string e;
   try {

@@ -309,6 +309,51 @@ TEST_CASE(
   }
 }
 
+TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once each, no other is reported") {
+  // The whole catalogue (every built-in model: same-shape cans of other prints, boxes, blocks) against a
+  // frame of two of them and a plain box the printed box's size: nothing says which models are there.
+  const Table t = make_table({{kCola, -0.1f, 0.f, 0.f}, {kBox, 0.1f, 0.06f, 0.4f}},
+                             {{{0.16f, 0.06f, 0.22f}, -0.1f, 0.2f, Rgb8{60, 140, 200}}});
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(t.models), test_settings());
+  const SixDofSceneResult r = estimator.detect(t.rgbd);
+  INFO(t.models.size() << " models, segments " << r.segments.size() << ", jobs " << r.jobs << " ("
+                       << r.screened_out << " screened out), candidates " << r.candidates << ", "
+                       << r.search.timings.total << " s");
+  std::set<int> models;
+  for (std::size_t k = 0; k < r.poses.size(); ++k) {
+    const SixDofPose& p = r.poses[k];
+    const auto [object, e] = nearest_gt(t, p.model, p.T_cam_obj);
+    INFO("detection " << k << ": model " << p.model << ", score " << p.score << ", ADD-S " << e << " m at "
+                      << p.T_cam_obj.translation().transpose() << "; rendered " << p.cost.rendered_points
+                      << " (" << p.cost.rendered_depth_outliers << " depth, "
+                      << p.cost.rendered_color_outliers << " colour outliers), observed "
+                      << p.cost.observed_in_volume << " (" << p.cost.observed_depth_outliers << ", "
+                      << p.cost.observed_color_outliers << ")");
+    CHECK(e < 0.01);
+    CHECK((p.score >= 0 && p.score <= 1));
+    if (k > 0) CHECK(p.score <= r.poses[k - 1].score);  // best first
+    CHECK(p.instance == p.model);
+    models.insert(p.model);
+  }
+  CHECK(r.poses.size() == 2);
+  CHECK(models == std::set<int>{kCola, kBox});
+  CHECK(r.missing.empty());
+
+  // What the rendered-colour test is for: without it a can of another print fits the plain box's faces.
+  DetectSettings shape_only;
+  shape_only.max_colour_mismatch = 1.f;
+  const SixDofSceneResult loose = estimator.detect(t.rgbd, shape_only);
+  CHECK(loose.poses.size() > r.poses.size());
+
+  CHECK(estimator.detect(make_table({}).rgbd).poses.empty());  // an empty table
+  DetectSettings bad;
+  bad.max_per_model = 0;
+  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("max_per_model"), InvalidInput);
+  bad = DetectSettings{};
+  bad.min_score = NAN;
+  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("min_score"), InvalidInput);
+}
+
 TEST_CASE("6-DoF scene: a segment of colours the model lacks is never searched for it") {
   // A green box the can's size beside the cola can: the can's label has no green.
   const Table t =

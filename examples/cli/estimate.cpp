@@ -166,6 +166,7 @@ int estimate_command(int argc, char** argv) {
   run.box = box == "full" ? BoxKind::Full : BoxKind::Visible;
   const auto [first, last] = scenes.empty() ? std::pair<int, int>{0, 1 << 30} : parse_scene_range(scenes);
 
+  options.ground_truth = run.mode == dataset::RunMode::SixDof && masks == "gt";  // never read otherwise
   const dataset::BopDataset data(dataset_dir, options);
   if (data.targets_path().empty())
     throw FileError(dataset_dir, "has no targets file (test_targets_bop19.json or _bop24.json)");

@@ -113,8 +113,9 @@ class Dataset:
     """A BOP dataset (perch2.BopDataset: opening it parses the JSON files only) whose images load lazily.
     Every BopDataset method is available on it (model_info, load_model, targets, info, load_image, ...)."""
 
-    def __init__(self, root, split="test", targets_file="", models_dir=""):
-        self.bop = BopDataset(str(root), split=split, targets_file=targets_file, models_dir=models_dir)
+    def __init__(self, root, split="test", targets_file="", models_dir="", ground_truth=True):
+        self.bop = BopDataset(str(root), split=split, targets_file=targets_file, models_dir=models_dir,
+                              ground_truth=ground_truth)
 
     def __getattr__(self, name):
         return getattr(self.bop, name)

@@ -78,7 +78,9 @@ class RunConfig:
                                  box=self.box)
 
     def open_dataset(self, root: str) -> "perch2.BopDataset":
-        return perch2.BopDataset(root, split=self.split, targets_file=self.targets)
+        # The ground truth only when the masks come from it: an estimator never reads it otherwise.
+        return perch2.BopDataset(root, split=self.split, targets_file=self.targets,
+                                 ground_truth=self.mode == "6dof" and self.masks == "gt")
 
     def scene_range(self) -> Tuple[int, int]:
         return self.scenes if self.scenes is not None else (0, 1 << 30)

@@ -153,22 +153,29 @@ void bind_dataset(nb::module_& m) {
       },
       nb::arg("info"), nb::arg("files"), doc("decode_image"));
 
+  nb::enum_<TargetTask> task(m, "TargetTask", doc("TargetTask"));
+  task.value("NoTargets", TargetTask::NoTargets)
+      .value("Localization", TargetTask::Localization)
+      .value("Detection", TargetTask::Detection);
+
   nb::class_<DatasetOptions> dopt(m, "DatasetOptions", doc("DatasetOptions"));
   dopt.def(nb::init<>());
   PERCH2_RW(dopt, DatasetOptions, split);
   PERCH2_RW(dopt, DatasetOptions, targets_file);
   PERCH2_RW(dopt, DatasetOptions, models_dir);
+  PERCH2_RW(dopt, DatasetOptions, ground_truth);
 
   nb::class_<BopDataset>(m, "BopDataset", doc("file:perch2/dataset/bop.hpp"))
       .def(
           "__init__",
           [](BopDataset* self, const std::string& root, const std::string& split,
-             const std::string& targets_file, const std::string& models_dir) {
+             const std::string& targets_file, const std::string& models_dir, bool ground_truth) {
             nb::gil_scoped_release release;
-            new (self) BopDataset(root, {split, targets_file, models_dir});
+            new (self) BopDataset(root, {split, targets_file, models_dir, ground_truth});
           },
           nb::arg("root"), nb::arg("split") = "test", nb::arg("targets_file") = "",
-          nb::arg("models_dir") = "", doc("BopDataset.BopDataset"))
+          nb::arg("models_dir") = "", nb::arg("ground_truth") = true, doc("BopDataset.BopDataset"))
+      .def("target_task", &BopDataset::target_task, doc("BopDataset.target_task"))
       .def("root", &BopDataset::root)
       .def("split_path", &BopDataset::split_path)
       .def("models_path", &BopDataset::models_path)

@@ -703,6 +703,13 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(sr, SixDofResult, fits_kept);
   PERCH2_RO(sr, SixDofResult, timings);
 
+  nb::class_<DetectSettings> dts(m, "DetectSettings", doc("DetectSettings"));
+  dts.def(nb::init<>());
+  PERCH2_RW(dts, DetectSettings, max_per_model);
+  PERCH2_RW(dts, DetectSettings, max_per_frame);
+  PERCH2_RW(dts, DetectSettings, min_score);
+  PERCH2_RW(dts, DetectSettings, max_colour_mismatch);
+
   nb::class_<SixDofSceneResult> ssr(m, "SixDofSceneResult", doc("SixDofSceneResult"));
   PERCH2_RO(ssr, SixDofSceneResult, poses);
   PERCH2_RO(ssr, SixDofSceneResult, missing);
@@ -781,7 +788,26 @@ void bind_estimators(nb::module_& m) {
           nb::arg("depth"), nb::arg("rgb").none(), nb::arg("K"), nb::arg("objects"),
           nb::arg("depth_scale_m").none() = nb::none(),
           "No detector: objects are perch2.SixDofObject or (model, count) pairs; depth, rgb and K as in\n"
-          "estimate(). Copies the arrays once.");
+          "estimate(). Copies the arrays once.")
+      .def(
+          "detect",
+          [](const PySixDof& e, const RgbdFrame& frame, std::optional<DetectSettings> settings) {
+            const DetectSettings d = settings.value_or(DetectSettings{});
+            return e.call([&](const auto& x) { return x.detect(frame, d); });
+          },
+          nb::arg("frame"), nb::arg("settings").none() = nb::none(), doc("SixDofEstimator.detect"))
+      .def(
+          "detect",
+          [](const PySixDof& e, nb::handle depth, nb::handle rgb, nb::handle K,
+             std::optional<DetectSettings> settings, std::optional<float> depth_scale_m) {
+            const RgbdFrame frame = frame_from(depth, rgb, K, depth_scale_m);
+            const DetectSettings d = settings.value_or(DetectSettings{});
+            return e.call([&](const auto& x) { return x.detect(frame, d); });
+          },
+          nb::arg("depth"), nb::arg("rgb").none(), nb::arg("K"), nb::arg("settings").none() = nb::none(),
+          nb::arg("depth_scale_m").none() = nb::none(),
+          "6D detection: every instance of every model, no counts given; depth, rgb and K as in estimate().\n"
+          "Copies the arrays once.");
 
   // ---- BOP 6-DoF glue (perch2/search/sixdof_bop.hpp)
   m.def("sixdof_model", &sixdof_model, nb::arg("mesh"), nb::arg("info"), doc("sixdof_model"));

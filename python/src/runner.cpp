@@ -89,6 +89,7 @@ void bind_runner(nb::module_& m) {
   PERCH2_RW(ro, RunOptions, masks);
   PERCH2_RW(ro, RunOptions, box);
   PERCH2_RW(ro, RunOptions, sixdof);
+  PERCH2_RW(ro, RunOptions, detect);
   PERCH2_RW(ro, RunOptions, min_instance_points);
 
   nb::class_<ImageResult> ir(m, "ImageResult", doc("ImageResult"));

@@ -239,14 +239,16 @@ void parse_scene_gt_info(const std::string& path, std::map<int, ImageInfo>& imag
       });
 }
 
-/// The targets file. A target of an image its scene could not give (a bad entry, a broken scene file) is
-/// kept (bop19: as listed; bop24: its objects are unknown) and the image listed in `bad` if it is not yet;
-/// a target of an image that is nowhere in the split is an error of the targets file.
+/// The targets file: its images, and for localization (bop19: obj_id and inst_count per entry) its
+/// targets; detection targets (bop24) name images only, and nothing of them is taken from the ground truth.
+/// An image its scene could not give (a bad entry, a broken scene file) is kept and listed in `bad` if it
+/// is not yet; an image that is nowhere in the split is an error of the targets file. Entries of both kinds
+/// in one file are an error.
 std::vector<Target> parse_targets(const std::string& path,
                                   const std::map<int, std::map<int, ImageInfo>>& scenes,
                                   const std::map<int, std::vector<Problem>>& scene_problems,
                                   std::map<std::pair<int, int>, BadImage>& bad,
-                                  std::vector<std::pair<int, int>>& images) {
+                                  std::vector<std::pair<int, int>>& images, TargetTask& task) {
   const json j = read_json(path);
   if (!j.is_array()) throw FileError(path, "expected a JSON list of targets");
   std::vector<Target> out;
@@ -269,15 +271,15 @@ std::vector<Target> parse_targets(const std::string& path,
       bad[key] = {t.scene_id, t.im_id, p->second.front().path, reason};
     }
     images.push_back(key);
-    if (j[k].contains("obj_id")) {  // bop19: one object of the image
+    const TargetTask kind = j[k].contains("obj_id") ? TargetTask::Localization : TargetTask::Detection;
+    if (task != TargetTask::NoTargets && kind != task)
+      throw FileError(path, where + ": mixes image-only (bop24) and object (bop19) targets");
+    task = kind;
+    if (kind == TargetTask::Localization) {  // bop19: one object of the image
       t.obj_id = integer(j[k]["obj_id"], path, where + " obj_id");
       t.inst_count = integer(member(j[k], "inst_count", path, where), path, where + " inst_count");
       if (t.inst_count < 1) throw FileError(path, where + " inst_count: must be >= 1");
       out.push_back(t);
-    } else if (good) {  // bop24: every annotated object of the image
-      std::map<int, int> counts;
-      for (const auto& gt : s->second.at(t.im_id).gt) ++counts[gt.obj_id];
-      for (const auto& [obj, n] : counts) out.push_back({t.scene_id, t.im_id, obj, n});
     }
   }
   std::sort(images.begin(), images.end());
@@ -366,9 +368,9 @@ BopDataset::BopDataset(std::string root, DatasetOptions options) : root_(std::mo
     auto& images = scenes_[scene_id];
     SceneProblems problems;
     parse_scene_camera(join(dir, "scene_camera.json"), scene_id, defaults, images, problems);
-    if (fs::exists(join(dir, "scene_gt.json")))
+    if (options.ground_truth && fs::exists(join(dir, "scene_gt.json")))
       parse_scene_gt(join(dir, "scene_gt.json"), models_info_, images, problems);
-    if (fs::exists(join(dir, "scene_gt_info.json")))
+    if (options.ground_truth && fs::exists(join(dir, "scene_gt_info.json")))
       parse_scene_gt_info(join(dir, "scene_gt_info.json"), images, problems);
     if (!defaults.present && !images.empty()) {  // image size from the first image of the scene
       const int im = images.begin()->first;
@@ -392,7 +394,8 @@ BopDataset::BopDataset(std::string root, DatasetOptions options) : root_(std::mo
     targets_path_ = join(root_, "test_targets_bop24.json");
   }
   if (!targets_path_.empty())
-    targets_ = parse_targets(targets_path_, scenes_, scene_problems, bad_images_, target_images_);
+    targets_ =
+        parse_targets(targets_path_, scenes_, scene_problems, bad_images_, target_images_, target_task_);
 }
 
 std::vector<std::pair<int, int>> run_images(const BopDataset& data, int first_scene, int last_scene) {
@@ -400,9 +403,10 @@ std::vector<std::pair<int, int>> run_images(const BopDataset& data, int first_sc
   for (const auto& t : data.targets())
     if (t.inst_count > 0) with_targets.insert({t.scene_id, t.im_id});
   std::vector<std::pair<int, int>> out;
+  const bool detection = data.target_task() == TargetTask::Detection;
   for (const auto& key : data.target_images())
     if (key.first >= first_scene && key.first <= last_scene &&
-        (with_targets.count(key) || data.bad_image(key.first, key.second)))
+        (detection || with_targets.count(key) || data.bad_image(key.first, key.second)))
       out.push_back(key);
   return out;
 }

@@ -121,6 +121,7 @@ struct BopRunner::Impl {
   std::map<int, int> model_of;  // obj_id -> model index
   std::vector<Mesh> meshes;
   std::map<std::pair<int, int>, std::vector<Target>> targets;
+  bool detection = false;  // detection targets (bop24): no objects or counts given
   std::vector<Detection> detections;
   std::map<std::pair<int, int>, std::vector<std::size_t>> detections_of;
   Estimator estimator;
@@ -140,7 +141,8 @@ struct BopRunner::Impl {
     return out;
   }
 
-  /// --masks none: the targets' objects and counts searched for in the whole frame (estimate_scene).
+  /// --masks none: the targets' objects and counts searched for in the whole frame (estimate_scene); on
+  /// detection targets every loaded model, any number of times (detect).
   template <class Backend>
   ImageResult run_scene(const SixDofEstimator<Backend>& e, const BopImage& image,
                         const std::vector<Target>& targets) const {
@@ -154,7 +156,8 @@ struct BopRunner::Impl {
     std::vector<SixDofObject> objects;
     for (const auto& [model, n] : count) objects.push_back({model, n});
     ImageResult out;
-    SixDofSceneResult r = e.estimate_scene(image.frame, objects);
+    SixDofSceneResult r =
+        detection ? e.detect(image.frame, options.detect) : e.estimate_scene(image.frame, objects);
     for (const auto& p : r.poses) {
       PoseEstimate row;
       row.scene_id = image.info.scene_id, row.im_id = image.info.im_id;
@@ -183,8 +186,8 @@ struct BopRunner::Impl {
             ? bop_instances_from_gt(image, model_of, options.box)
             : bop_instances_from_detections(image, detections,
                                             det == detections_of.end() ? none : det->second, model_of);
-    const BopInstances in = usable_instances(only_targets(all, targets), image.frame, e.settings().observed,
-                                             options.min_instance_points);
+    const BopInstances in = usable_instances(detection ? all : only_targets(all, targets), image.frame,
+                                             e.settings().observed, options.min_instance_points);
     ImageResult out;
     SixDofResult r;
     out.rows = estimate_bop_image(e, image, in, &r);
@@ -202,9 +205,16 @@ struct BopRunner::Impl {
 
 BopRunner::BopRunner(const BopDataset& data, RunOptions options, std::vector<int> obj_ids)
     : impl_(std::make_unique<Impl>(
-          Impl{data, std::move(options), std::move(obj_ids), {}, {}, {}, {}, {}, {}})) {
+          Impl{data, std::move(options), std::move(obj_ids), {}, {}, {}, {}, {}, {}, {}})) {
   Impl& m = *impl_;
   m.targets = targets_by_image(data.targets());
+  m.detection = data.target_task() == TargetTask::Detection;
+  if (m.detection && m.options.mode == RunMode::Tabletop)
+    throw InvalidInput("--mode 3dof", data.targets_path() +
+                                          " sets 6D detection (images only): the 3-DoF search needs objects "
+                                          "and counts (test_targets_bop19.json); use --mode 6dof");
+  if (m.detection && m.obj_ids.empty())  // the whole catalogue
+    for (const auto& [id, info] : data.models_info()) m.obj_ids.push_back(id);
   if (m.obj_ids.empty()) {
     std::set<int> ids;
     for (const auto& [key, targets] : m.targets)

@@ -14,6 +14,7 @@ namespace perch2::eval {
 
 using dataset::BopDataset;
 using dataset::PoseEstimate;
+using dataset::TargetTask;
 
 namespace {
 
@@ -337,9 +338,14 @@ EvalReport evaluate(const BopDataset& data, const std::vector<PoseEstimate>& est
           "obj_id " + std::to_string(e.obj_id) + " is not in " + data.models_path() + "/models_info.json");
   check_times(estimates, settings.time_tolerance_s, source, rep);
 
-  // Targets per image and object; estimates grouped the same way.
+  // Targets per image and object (detection targets name only images: every annotated instance of one is
+  // a target); estimates grouped the same way.
   std::map<std::pair<int, int>, std::map<int, int>> targets;
   for (const auto& t : data.targets()) targets[{t.scene_id, t.im_id}][t.obj_id] += t.inst_count;
+  if (data.target_task() == TargetTask::Detection)
+    for (const auto& [scene, im] : data.target_images())
+      if (data.has_image(scene, im))
+        for (const auto& gt : data.info(scene, im).gt) ++targets[{scene, im}][gt.obj_id];
   std::map<std::pair<int, int>, std::map<int, std::vector<std::size_t>>> grouped;
   for (std::size_t k = 0; k < estimates.size(); ++k) {
     const auto& e = estimates[k];

@@ -6,8 +6,8 @@
 //   ROOT/models/models_info.json           {"OBJ_ID": {diameter (mm), symmetries_discrete [[16 numbers: 4x4
 //                                          row-major, translation in mm]], symmetries_continuous
 //                                          [{axis [3], offset [3] (mm)}], ...}}
-//   ROOT/test_targets_bop19.json           [{scene_id, im_id, obj_id, inst_count}]  (or _bop24: [{scene_id,
-//                                          im_id}], every annotated instance of the image is a target)
+//   ROOT/test_targets_bop19.json           [{scene_id, im_id, obj_id, inst_count}]: 6D localization (or
+//                                          _bop24: [{scene_id, im_id}], 6D detection: any model, any count)
 //   ROOT/SPLIT/SCENE_ID/scene_camera.json  {"IM_ID": {cam_K [9, row-major], depth_scale (mm per unit),
 //                                          cam_R_w2c [9]?, cam_t_w2c [3] (mm)?}}
 //   ROOT/SPLIT/SCENE_ID/scene_gt.json      {"IM_ID": [{obj_id, cam_R_m2c [9], cam_t_m2c [3] (mm)}]}
@@ -76,6 +76,11 @@ struct Target {
   int scene_id = 0, im_id = 0, obj_id = 0, inst_count = 0;
 };
 
+/// The task a targets file sets. Localization (test_targets_bop19.json): each image's objects and their
+/// instance counts are given. Detection (test_targets_bop24.json, BOP 2024): only the images; any model of
+/// the dataset may be in an image any number of times, or not at all.
+enum class TargetTask { NoTargets, Localization, Detection };
+
 /// Which parts of an image load_image() reads.
 struct ImageLoadOptions {
   bool rgb = true;          ///< rgb/IM_ID.png or .jpg (missing file: FileError)
@@ -133,6 +138,9 @@ struct DatasetOptions {
   std::string targets_file;
   /// Folder of the models under the root; "" = "models".
   std::string models_dir;
+  /// false: scene_gt.json and scene_gt_info.json are not read (an estimator's view of a test set, whose
+  /// ground truth BOP withholds); ImageInfo::gt stays empty, so images have no masks to load.
+  bool ground_truth = true;
 };
 
 class BopDataset {
@@ -172,9 +180,10 @@ class BopDataset {
   const BadImage* bad_image(int scene_id, int im_id) const;  ///< nullptr if the image is not bad
   const std::vector<std::string>& warnings() const { return warnings_; }
 
-  /// Path of the targets file read ("" if none), and its targets (bop24: one per object of each image,
-  /// inst_count = the image's annotated instances of that object; none for a bad image).
+  /// Path of the targets file read ("" if none), the task it sets, and its targets (Localization: as
+  /// listed; Detection: none, only target_images()).
   const std::string& targets_path() const { return targets_path_; }
+  TargetTask target_task() const { return target_task_; }
   const std::vector<Target>& targets() const { return targets_; }
   /// Every image the targets file lists, ascending, bad images included.
   const std::vector<std::pair<int, int>>& target_images() const { return target_images_; }
@@ -194,6 +203,7 @@ class BopDataset {
   std::map<int, std::map<int, ImageInfo>> scenes_;  // usable images only
   std::map<std::pair<int, int>, BadImage> bad_images_;
   std::vector<std::string> warnings_;
+  TargetTask target_task_ = TargetTask::NoTargets;
   std::vector<Target> targets_;
   std::vector<std::pair<int, int>> target_images_;
 };
@@ -205,7 +215,8 @@ std::map<std::pair<int, int>, std::vector<Target>> targets_by_image(const std::v
                                                                     int last_scene = 1 << 30);
 
 /// The images a run over scenes [first_scene, last_scene] estimates, (scene_id, im_id) ascending: those the
-/// targets file lists with at least one instance, and the bad images it lists (a run reports them).
+/// targets file lists with at least one instance (Detection: every image it lists), and the bad images it
+/// lists (a run reports them).
 /// BopRunner::images() is this; a driver that holds no models can list them too.
 std::vector<std::pair<int, int>> run_images(const BopDataset& data, int first_scene = 0,
                                             int last_scene = 1 << 30);

@@ -62,9 +62,12 @@ struct RunOptions {
   /// JSON with RLE masks, read once when the runner is built), or "none": no masks, the targets' objects
   /// and instance counts are searched for in the whole frame (SixDofEstimator::estimate_scene; instances
   /// not found are counted in ImageResult::missing).
+  /// On detection targets (bop24: images only) "none" searches the whole catalogue
+  /// (SixDofEstimator::detect with `detect`), and "gt" or a file estimates every instance they give.
   std::string masks = "gt";
   BoxKind box = BoxKind::Full;  ///< 6-DoF with "gt" masks: scene_gt_info's amodal bbox_obj, or bbox_visib
   SixDofSettings sixdof;
+  DetectSettings detect;  ///< 6-DoF, masks "none", detection targets: what detect() may report
   /// 6-DoF: an instance with fewer valid depth readings inside its mask (on the observed grid, once later
   /// masks have taken their pixels) is skipped and counted in ImageResult::unusable.
   int min_instance_points = 10;

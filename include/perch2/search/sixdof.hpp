@@ -133,7 +133,19 @@ class SixDofEstimator {
   /// count and bad settings.
   SixDofSceneResult estimate_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects) const;
 
+  /// 6D detection (BOP 2024): every instance of every model in an unsegmented frame, with no model or count
+  /// given; estimate_scene() over the whole catalogue, each model up to settings.max_per_model times. An
+  /// instance is placed only where an acceptable candidate explains its readings (look-alikes compete
+  /// through the RGB-D cost), so a model that is not there is not reported. The poses come best score
+  /// first, at most max_per_frame, each with score >= min_score. Throws as estimate_scene() and
+  /// InvalidInput on bad DetectSettings.
+  SixDofSceneResult detect(const RgbdFrame& frame, const DetectSettings& settings = {}) const;
+
  private:
+  /// estimate_scene() with acceptable()'s rendered-colour test (1 = none; detect(): its settings').
+  SixDofSceneResult explain_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects,
+                                  float max_rendered_colour_mismatch) const;
+
   sixdof_detail::Shared<Backend> shared_;  ///< models, settings, per-model sizes and colours, renderer, fit
 };
 
@@ -196,6 +208,13 @@ SixDofResult SixDofEstimator<Backend>::estimate(const RgbdFrame& frame,
 template <class Backend>
 SixDofSceneResult SixDofEstimator<Backend>::estimate_scene(const RgbdFrame& frame,
                                                            const std::vector<SixDofObject>& objects) const {
+  return explain_scene(frame, objects, 1.f);
+}
+
+template <class Backend>
+SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame,
+                                                          const std::vector<SixDofObject>& objects,
+                                                          float max_rendered_colour_mismatch) const {
   using namespace sixdof_detail;
   const auto t_start = Clock::now();
   validate_scene(shared_.settings, shared_.models, frame, objects);
@@ -203,6 +222,7 @@ SixDofSceneResult SixDofEstimator<Backend>::estimate_scene(const RgbdFrame& fram
   SixDofSceneResult out;
   SixDofResult& result = out.search;
   SceneState scene = scene_state(shared_.models.size(), objects);
+  scene.max_rendered_colour_mismatch = max_rendered_colour_mismatch;
   out.missing = scene.remaining;
 
   // ---- segment: support plane, connected components, size rule
@@ -232,6 +252,25 @@ SixDofSceneResult SixDofEstimator<Backend>::estimate_scene(const RgbdFrame& fram
   fit_placed(shared_, frame, scene, out);
   out.missing = scene.remaining;
   return finish(out, t_start);
+}
+
+template <class Backend>
+SixDofSceneResult SixDofEstimator<Backend>::detect(const RgbdFrame& frame,
+                                                   const DetectSettings& settings) const {
+  sixdof_detail::validate_detect(settings);
+  std::vector<SixDofObject> catalogue;
+  for (std::size_t m = 0; m < shared_.models.size(); ++m)
+    catalogue.push_back({int(m), settings.max_per_model});
+  SixDofSceneResult out = explain_scene(frame, catalogue, settings.max_colour_mismatch);
+  std::vector<SixDofPose>& poses = out.poses;
+  poses.erase(std::remove_if(poses.begin(), poses.end(),
+                             [&](const SixDofPose& p) { return !(p.score >= settings.min_score); }),
+              poses.end());
+  std::stable_sort(poses.begin(), poses.end(),
+                   [](const SixDofPose& a, const SixDofPose& b) { return a.score > b.score; });
+  if (poses.size() > std::size_t(settings.max_per_frame)) poses.resize(std::size_t(settings.max_per_frame));
+  out.missing.clear();
+  return out;
 }
 
 }  // namespace perch2

@@ -55,12 +55,27 @@ struct SixDofObject {
   int count = 1;
 };
 
-/// estimate_scene()'s answer.
+/// detect()'s limits: no model or count is given, so these bound what it may report.
+struct DetectSettings {
+  int max_per_model = 8;    ///< instances of one model at most per frame (>= 1)
+  int max_per_frame = 100;  ///< detections at most per frame, the best scored (>= 1; BOP 2024 scores 100)
+  float min_score = 0.f;    ///< a detection is reported only with at least this score (in [0, 1])
+  /// A candidate is placed only if at most this fraction of its rendered points near readings show a
+  /// colour none of those readings has, and at most this fraction of the readings near its surface a
+  /// colour none of its points has (in [0, 1]; 1 = no test; estimate_scene() tests only the readings, at
+  /// SceneSettings::max_colour_mismatch): where only its shape fits, a model is not placed. Generated
+  /// frames (not yet tuned on real ones): true poses 0-7 % on either side; a can of another print on a
+  /// plain box of the can's colours 24-33 % of its points, a block on a textured object 23-26 % of readings.
+  float max_colour_mismatch = 0.15f;
+};
+
+/// estimate_scene()'s and detect()'s answer.
 struct SixDofSceneResult {
-  /// Placed instances, in placement order; SixDofPose::instance = index into the objects given.
+  /// Placed instances, in placement order (detect(): best score first); SixDofPose::instance = index into
+  /// the objects given (detect(): the model).
   std::vector<SixDofPose> poses;
-  std::vector<int> missing;                 ///< per object given: requested instances not placed
-  std::vector<FrameSegment> segments;       ///< the frame's segments (largest first)
+  std::vector<int> missing;            ///< per object given: requested instances not placed (detect(): empty)
+  std::vector<FrameSegment> segments;  ///< the frame's segments (largest first)
   std::vector<std::size_t> segment_points;  ///< per segment: its readings on the observed grid
   std::optional<TablePlane> plane;          ///< the support plane, if one was found
   std::size_t jobs = 0;                     ///< (model, segment or piece) searches, after screening

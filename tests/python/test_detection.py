@@ -1,0 +1,68 @@
+"""6D detection (BOP 2024 targets: images only) through the CLI: `perch2 estimate --mode 6dof --masks none`
+searches every model of models/ on a copy of a generated set without any ground truth (no scene_gt*.json,
+no masks), and `perch2 eval` scores the rows on the same images with their ground truth."""
+
+import csv
+import json
+import shutil
+
+from conftest import run
+
+
+def bop24_copy(src, dst, ground_truth):
+    """dst: src with test_targets_bop24.json for its first image instead of the bop19 targets; without
+    ground_truth, scene_gt.json, scene_gt_info.json and the mask folders removed (as BOP withholds them)."""
+    shutil.copytree(src, dst)
+    first = json.loads((dst / "test_targets_bop19.json").read_text())[0]
+    (dst / "test_targets_bop19.json").unlink()
+    (dst / "test_targets_bop24.json").write_text(json.dumps([{"scene_id": first["scene_id"], "im_id": first["im_id"]}]))
+    if not ground_truth:
+        for scene in (dst / "test").iterdir():
+            for name in ("scene_gt.json", "scene_gt_info.json"):
+                (scene / name).unlink()
+            for name in ("mask", "mask_visib"):
+                shutil.rmtree(scene / name, ignore_errors=True)
+    return dst, (first["scene_id"], first["im_id"])
+
+
+def rows_of(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_detection_reads_no_ground_truth_and_finds_what_is_there(cli, dataset_6dof, tmp_out):
+    blind, image = bop24_copy(dataset_6dof, tmp_out / "blind", ground_truth=False)
+    out = tmp_out / "detections.csv"
+    p = run(cli, "estimate", "--mode", "6dof", "--masks", "none", "--dataset", blind, "--out", out)
+    rows = rows_of(out)
+    catalogue = {int(k) for k in json.loads((blind / "models" / "models_info.json").read_text())}
+    assert len(catalogue) > 2, "the generated set's models/ is the catalogue: more models than the image holds"
+    assert rows and all((int(r["scene_id"]), int(r["im_id"])) == image for r in rows), p.stdout
+    assert {int(r["obj_id"]) for r in rows} <= catalogue
+    assert all(0 <= float(r["score"]) <= 1 for r in rows)
+
+    # Scored on the same image with its ground truth: every annotated instance found within 1 cm, and no
+    # model reported that is not there (look-alike cans of other prints are in the catalogue).
+    scored, _ = bop24_copy(dataset_6dof, tmp_out / "scored", ground_truth=True)
+    run(cli, "eval", "--dataset", scored, "--results", out, "--json", tmp_out / "eval.json", "--no-vsd")
+    report = json.loads((tmp_out / "eval.json").read_text())
+    assert report["overall"]["adds_below_1cm"] == 1.0, report["overall"]
+    gt = json.loads((dataset_6dof / "test" / f"{image[0]:06d}" / "scene_gt.json").read_text())[str(image[1])]
+    assert sorted(int(r["obj_id"]) for r in rows) == sorted(g["obj_id"] for g in gt), rows
+
+
+def test_detection_targets_with_ground_truth_masks_estimate_every_annotated_instance(cli, dataset_6dof, tmp_out):
+    scored, image = bop24_copy(dataset_6dof, tmp_out / "gt", ground_truth=True)
+    out = tmp_out / "gt.csv"
+    run(cli, "estimate", "--mode", "6dof", "--masks", "gt", "--dataset", scored, "--out", out)
+    gt = json.loads((scored / "test" / f"{image[0]:06d}" / "scene_gt.json").read_text())[str(image[1])]
+    assert sorted(int(r["obj_id"]) for r in rows_of(out)) == sorted(g["obj_id"] for g in gt)
+
+
+def test_detection_targets_ask_for_the_6dof_search(cli, dataset_6dof, tmp_out):
+    blind, _ = bop24_copy(dataset_6dof, tmp_out / "blind3", ground_truth=False)
+    import subprocess
+
+    p = subprocess.run([cli, "estimate", "--mode", "3dof", "--dataset", str(blind), "--out", str(tmp_out / "x.csv")],
+                       capture_output=True, text=True)
+    assert p.returncode != 0 and "--mode 6dof" in p.stderr, p.stderr
