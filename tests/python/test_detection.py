@@ -5,7 +5,9 @@ no masks), and `perch2 eval` scores the rows on the same images with their groun
 import csv
 import json
 import shutil
+import subprocess
 
+import perch2
 from conftest import run
 
 
@@ -32,6 +34,9 @@ def rows_of(path):
 
 def test_detection_reads_no_ground_truth_and_finds_what_is_there(cli, dataset_6dof, tmp_out):
     blind, image = bop24_copy(dataset_6dof, tmp_out / "blind", ground_truth=False)
+    ds = perch2.BopDataset(str(blind), ground_truth=False)
+    assert ds.target_task() == perch2.TargetTask.Detection and not ds.targets()
+    assert ds.target_images() == [image] and not ds.info(*image).gt
     out = tmp_out / "detections.csv"
     p = run(cli, "estimate", "--mode", "6dof", "--masks", "none", "--dataset", blind, "--out", out)
     rows = rows_of(out)
@@ -61,8 +66,6 @@ def test_detection_targets_with_ground_truth_masks_estimate_every_annotated_inst
 
 def test_detection_targets_ask_for_the_6dof_search(cli, dataset_6dof, tmp_out):
     blind, _ = bop24_copy(dataset_6dof, tmp_out / "blind3", ground_truth=False)
-    import subprocess
-
     p = subprocess.run([cli, "estimate", "--mode", "3dof", "--dataset", str(blind), "--out", str(tmp_out / "x.csv")],
                        capture_output=True, text=True)
     assert p.returncode != 0 and "--mode 6dof" in p.stderr, p.stderr
