@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # perch2 estimate loses nothing (issue 20): on a generated 3-image dataset, against one clean run,
 #   - a truncated depth PNG in the middle, a truncated rgb PNG (3dof) or a missing mask (6dof), a malformed
-#     scene_gt.json entry: only that image is missing, the other rows are the clean run's, exit status 3, the
-#     summary names the file and the reason; --strict stops at the first (exit 1); an unwritable output or
+#     scene_gt.json (6dof) or scene_camera.json (3dof, which never reads the ground truth: a broken
+#     scene_gt.json costs nothing) entry: only that image is missing, the other rows are the clean run's,
+#     exit status 3, the summary names the file and the reason; --strict stops at the first (exit 1); an unwritable output or
 #     no models_info.json fails at once (exit 1);
 #   - a second run on the same output while one runs fails (exit 1); a run killed (SIGKILL) after its first
 #     image, with a torn line appended, then --resume: the torn line is reported and dropped and the rows are
@@ -83,11 +84,25 @@ run bad_file.log --dataset bad_file --out bad_file.csv
 expect 3 "skipped scene 1 image 2" "$what"
 [ "$(rows bad_file.csv)" == "$(rows_but_image clean.csv 2)" ] || fail "$what: other rows differ"
 
+# A malformed entry of a scene file the run reads: scene_gt.json for 6-DoF with ground-truth masks, else
+# scene_camera.json (the ground truth is never read then: a broken scene_gt.json costs nothing).
 cp -r data bad_json
-sed -i '/^  "0": /s/cam_t_m2c/cam_t_broken/' bad_json/test/000001/scene_gt.json
+if [ "$mode" = 6dof ]; then
+  sed -i '/^  "0": /s/cam_t_m2c/cam_t_broken/' bad_json/test/000001/scene_gt.json
+  what="scene_gt.json: image 0 instance 0: missing key \"cam_t_m2c\""
+else
+  sed -i '/^  "0": /s/cam_K/cam_K_broken/' bad_json/test/000001/scene_camera.json
+  what="scene_camera.json: image 0: missing key \"cam_K\""
+  cp -r data bad_gt
+  sed -i '/^  "0": /s/cam_t_m2c/cam_t_broken/' bad_gt/test/000001/scene_gt.json
+  rm bad_gt/test/000001/scene_gt_info.json
+  run bad_gt.log --dataset bad_gt --out bad_gt.csv
+  expect 0
+  [ "$(rows bad_gt.csv)" == "$(rows clean.csv)" ] || fail "3-DoF read the ground truth: rows differ"
+fi
 run bad_json.log --dataset bad_json --out bad_json.csv
-expect 3 "skipped scene 1 image 0" "scene_gt.json: image 0 instance 0: missing key \"cam_t_m2c\""
-[ "$(rows bad_json.csv)" == "$(rows_but_image clean.csv 0)" ] || fail "malformed scene_gt entry: other rows differ"
+expect 3 "skipped scene 1 image 0" "$what"
+[ "$(rows bad_json.csv)" == "$(rows_but_image clean.csv 0)" ] || fail "malformed scene entry: other rows differ"
 
 # Dataset-level problems still fail at once, before any image.
 run unwritable.log --dataset data --out no_such_dir/r.csv
