@@ -27,6 +27,7 @@ from ._perch2 import (  # noqa: F401  (the C++ dataset layer, re-exported)
     ModelInfo,
     PoseEstimate,
     ResultsWriter,
+    RunMode,
     Rle,
     RunOptions,
     SixDofEstimator,
@@ -152,8 +153,12 @@ def estimate(dataset, options, scenes=None, progress=None, errors=None):
     """Every target image of a BOP dataset through perch2.BopRunner (what `perch2 estimate` runs): the
     models loaded and the estimator built once, one image at a time. Returns the BOP rows. An image that
     cannot be estimated (a bad file, a malformed entry) raises perch2.ImageError, or, with `errors` a list,
-    is appended to it and skipped. progress(done, total), if given, is called after each image."""
-    ds = _bop(dataset)
+    is appended to it and skipped. progress(done, total), if given, is called after each image. A dataset
+    given by its path is opened without its ground truth unless the masks come from it (6-DoF, masks "gt")."""
+    if isinstance(dataset, Dataset):
+        ds = dataset
+    else:
+        ds = Dataset(dataset, ground_truth=options.mode == RunMode.SixDof and options.masks == "gt")
     runner = BopRunner(ds.bop, options)
     images = runner.images(*(scenes or (0, 1 << 30)))
     rows = []
