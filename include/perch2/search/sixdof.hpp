@@ -142,9 +142,9 @@ class SixDofEstimator {
   SixDofSceneResult detect(const RgbdFrame& frame, const DetectSettings& settings = {}) const;
 
  private:
-  /// estimate_scene() with acceptable()'s rendered-colour test (1 = none; detect(): its settings').
+  /// estimate_scene() with acceptable()'s colour test on both sides (1 = none; detect(): its settings').
   SixDofSceneResult explain_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects,
-                                  float max_rendered_colour_mismatch) const;
+                                  float detect_colour_mismatch) const;
 
   sixdof_detail::Shared<Backend> shared_;  ///< models, settings, per-model sizes and colours, renderer, fit
 };
@@ -214,7 +214,7 @@ SixDofSceneResult SixDofEstimator<Backend>::estimate_scene(const RgbdFrame& fram
 template <class Backend>
 SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame,
                                                           const std::vector<SixDofObject>& objects,
-                                                          float max_rendered_colour_mismatch) const {
+                                                          float detect_colour_mismatch) const {
   using namespace sixdof_detail;
   const auto t_start = Clock::now();
   validate_scene(shared_.settings, shared_.models, frame, objects);
@@ -222,7 +222,7 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   SixDofSceneResult out;
   SixDofResult& result = out.search;
   SceneState scene = scene_state(shared_.models.size(), objects);
-  scene.max_rendered_colour_mismatch = max_rendered_colour_mismatch;
+  scene.detect_colour_mismatch = detect_colour_mismatch;
   out.missing = scene.remaining;
 
   // ---- segment: support plane, connected components, size rule

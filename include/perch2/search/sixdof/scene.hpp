@@ -40,7 +40,7 @@ struct SceneState {
   std::vector<Hypothesis> placed;    ///< in placement order
   std::vector<int> placed_object;
   std::vector<std::size_t> placed_estimate;  ///< per placed object: its job's rendered-points estimate
-  float max_rendered_colour_mismatch = 1.f;  ///< acceptable()'s (detect(): DetectSettings); 1 = no test
+  float detect_colour_mismatch = 1.f;        ///< acceptable()'s (detect(): DetectSettings); 1 = no test
 };
 
 /// The state before the first pass: every object's count still to place, the maps between objects and
@@ -113,7 +113,7 @@ void refine_again(const Context<Backend>& ctx, const CloudBatch& unexplained,
 template <class Backend>
 void search_placed(const Context<Backend>& ctx, const Context<Backend>& now, std::vector<Hypothesis> starts,
                    Hypothesis& placed, const std::vector<std::size_t>& points_estimate,
-                   float max_rendered_colour_mismatch, SixDofResult& result) {
+                   float detect_colour_mismatch, SixDofResult& result) {
   const SixDofSettings& s = ctx.shared.settings;
   if (starts.empty()) return;
   const auto t = Clock::now();
@@ -121,7 +121,7 @@ void search_placed(const Context<Backend>& ctx, const Context<Backend>& now, std
   std::vector<CostBreakdown> costs(starts.size());
   local_stage(ctx, starts, costs, std::size_t(placed.label), points_estimate, result);
   const std::vector<CostBreakdown> c = score(now, starts, s.score_stride, s.cost, points_estimate, result);
-  if (acceptable(s, c.front(), max_rendered_colour_mismatch)) placed = starts.front();
+  if (acceptable(s, c.front(), detect_colour_mismatch)) placed = starts.front();
   result.timings.explain -= seconds_since(t);  // counted in local
 }
 
@@ -224,7 +224,7 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
       const std::vector<CostBreakdown> was =
           score(now, previous, s.score_stride, s.cost, points_estimate, result);
       for (std::size_t j = 0; j < previous.size(); ++j)
-        if (better_explanation(s, was[j], c[touched[j]], scene.max_rendered_colour_mismatch))
+        if (better_explanation(s, was[j], c[touched[j]], scene.detect_colour_mismatch))
           candidates[touched[j]] = previous[j], c[touched[j]] = was[j], ++out.reverted;
     }
     ++out.rounds;
@@ -232,14 +232,14 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
     for (std::size_t i = 0; i < candidates.size(); ++i) {
       const int obj = scene.object_of_model[std::size_t(candidates[i].model)];
       if (obj < 0 || scene.remaining[std::size_t(obj)] <= 0 ||
-          !acceptable(s, c[i], scene.max_rendered_colour_mismatch))
+          !acceptable(s, c[i], scene.detect_colour_mismatch))
         continue;
       if (pick == candidates.size() || explained(c[i]) > explained(c[pick])) pick = i;
     }
     if (pick == candidates.size()) break;  // nothing acceptable is left: the rest is missing
     if (ss.local_search_placed_only && s.local.candidates_per_instance > 0)
       search_placed(ctx, now, found[std::size_t(candidates[pick].label - 1)].local_starts, candidates[pick],
-                    points_estimate, scene.max_rendered_colour_mismatch, result);
+                    points_estimate, scene.detect_colour_mismatch, result);
     const std::int32_t label = std::int32_t(S + 1 + scene.placed.size());
     explain(now, candidates[pick], label, S, scene.labels, result);
     const int obj = scene.object_of_model[std::size_t(candidates[pick].model)];

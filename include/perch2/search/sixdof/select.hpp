@@ -173,11 +173,10 @@ inline std::int32_t explained(const CostBreakdown& c) {
 }
 
 /// Whether a scene candidate, scored against what is still unexplained, may be placed (SceneSettings).
-/// max_rendered_colour_mismatch (detect(): DetectSettings::max_colour_mismatch; 1 = no test): the
+/// detect_colour_mismatch (detect(): DetectSettings::max_colour_mismatch; 1 = no test): the
 /// largest fraction of its rendered points near readings whose colour matches none of them, and of the
 /// readings near its surface that match none of its colours.
-inline bool acceptable(const SixDofSettings& s, const CostBreakdown& c,
-                       float max_rendered_colour_mismatch = 1.f) {
+inline bool acceptable(const SixDofSettings& s, const CostBreakdown& c, float detect_colour_mismatch = 1.f) {
   const SceneSettings& ss = s.scene;
   if (c.rendered_points < s.min_rendered_points) return false;
   const float inliers = float(c.rendered_points - c.rendered_outliers());
@@ -186,17 +185,17 @@ inline bool acceptable(const SixDofSettings& s, const CostBreakdown& c,
   return inliers >= ss.min_inlier_fraction * float(c.rendered_points) &&
          explained(c) >= ss.min_explained_points &&
          float(c.observed_color_outliers) <= ss.max_colour_mismatch * reached &&
-         (max_rendered_colour_mismatch >= 1.f ||
-          (float(c.rendered_color_outliers) <= max_rendered_colour_mismatch * near &&
-           float(c.observed_color_outliers) <= max_rendered_colour_mismatch * reached));
+         (detect_colour_mismatch >= 1.f ||
+          (float(c.rendered_color_outliers) <= detect_colour_mismatch * near &&
+           float(c.observed_color_outliers) <= detect_colour_mismatch * reached));
 }
 
 /// Whether a candidate with cost `a` explains the scene better than with `b`: acceptable before not, then
 /// more readings explained.
 inline bool better_explanation(const SixDofSettings& s, const CostBreakdown& a, const CostBreakdown& b,
-                               float max_rendered_colour_mismatch = 1.f) {
-  const bool ok_a = acceptable(s, a, max_rendered_colour_mismatch);
-  if (ok_a != acceptable(s, b, max_rendered_colour_mismatch)) return ok_a;
+                               float detect_colour_mismatch = 1.f) {
+  const bool ok_a = acceptable(s, a, detect_colour_mismatch);
+  if (ok_a != acceptable(s, b, detect_colour_mismatch)) return ok_a;
   return explained(a) > explained(b);
 }
 
