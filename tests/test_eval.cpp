@@ -1,5 +1,6 @@
 // Pose evaluation on constructed cases with known answers.
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <random>
 
@@ -42,9 +43,11 @@ struct Fixture {
   std::vector<FixtureImage> images;
   float block_diameter = 0, cylinder_diameter = 0;
 
-  Fixture() {
+  /// detection: test_targets_bop24.json (images only) instead of _bop19, and the second block of image 1
+  /// marked 5 % visible (below BOP's 10 %: not a positive).
+  explicit Fixture(bool detection = false) {
     // One folder per process: ctest runs this file's test cases as separate processes in parallel.
-    root = test::temp_path("eval_fixture_" + std::to_string(::getpid()));
+    root = test::temp_path((detection ? "eval_fixture24_" : "eval_fixture_") + std::to_string(::getpid()));
     FixtureObject block{1, test::make_box(0.08f, 0.05f, 0.03f)};
     block.diameter_m = block_diameter = diameter_of(block.mesh_m);
     auto sym = [](const Pose& R) {
@@ -73,6 +76,16 @@ struct Fixture {
                 {1, test::pose_at(0.05f, 0.04f, 0.55f) * rot({0, 1, 0}, 0.4f)},
                 {2, test::pose_at(0.05f, -0.05f, 0.6f)}}}};
     write_bop_dataset(root, {block, cylinder, blob}, images, K);
+    if (detection) {
+      std::filesystem::remove(root + "/test_targets_bop19.json");
+      write_text(root + "/test_targets_bop24.json",
+                 R"([{"scene_id": 1, "im_id": 0}, {"scene_id": 1, "im_id": 1}])");
+      const std::string info_path = root + "/test/000001/scene_gt_info.json";
+      std::ifstream in(info_path);
+      nlohmann::json info = nlohmann::json::parse(in);
+      info["1"][1]["visib_fract"] = 0.05;
+      write_text(info_path, info.dump());
+    }
   }
 
   ~Fixture() { std::filesystem::remove_all(root); }
@@ -96,6 +109,11 @@ struct Fixture {
 
 const Fixture& fixture() {
   static const Fixture f;
+  return f;
+}
+
+const Fixture& detection_fixture() {
+  static const Fixture f(true);
   return f;
 }
 
@@ -365,4 +383,150 @@ TEST_CASE("VSD: identical renders score 0, disjoint ones 1, occluded pixels are 
   // A test depth 0.5 m in front of pixels 1..3 hides both models there: nothing visible, error 1.
   for (int u = 1; u <= 3; ++u) depth(u, 0) = 0.5f;
   CHECK(vsd_errors(a, a, depth, K, 0.015, {0.05}, 0.1)[0] == 1.0);
+}
+
+TEST_CASE("AP as bop_toolkit score.calc_ap: COCO's 101-point interpolated precision") {
+  // The toolkit's own example: 6 detections, 3 true, 6 positives. Recall / precision after each: 0/0,
+  // 1/6 1/2, 2/6 2/3, 2/6 1/2, 3/6 3/5, 3/6 1/2. Interpolated: 2/3 for r = 0 ... 0.33 (34 points), 3/5 for
+  // r = 0.34 ... 0.50 (17), 0 above.
+  const auto pr = precision_recall({false, true, true, false, true, false}, 6);
+  CHECK(pr.recall[4] == doctest::Approx(0.5));
+  CHECK(pr.precision[4] == doctest::Approx(0.6));
+  const auto curve = interpolated_precision(pr);
+  REQUIRE(curve.size() == 101);
+  CHECK(curve[33] == doctest::Approx(2.0 / 3));
+  CHECK(curve[34] == doctest::Approx(0.6));
+  CHECK(curve[50] == doctest::Approx(0.6));  // recall 3/6 reaches r = 0.5 exactly
+  CHECK(curve[51] == 0.0);
+  CHECK(average_precision(pr) == doctest::Approx((34 * 2.0 / 3 + 17 * 0.6) / 101));
+  CHECK(average_precision(precision_recall({true, true}, 2)) == doctest::Approx(1.0));
+  // False positives after full recall cost nothing; before it they do.
+  CHECK(average_precision(precision_recall({true, true, false, false}, 2)) == doctest::Approx(1.0));
+  CHECK(average_precision(precision_recall({false, true, true}, 2)) == doctest::Approx(2.0 / 3));
+  CHECK(average_precision(precision_recall({}, 3)) == 0.0);
+}
+
+namespace {
+
+EvalReport run_detection(const std::vector<PoseEstimate>& ests, const EvalSettings& s = {}) {
+  const BopDataset d(detection_fixture().root);
+  REQUIRE(d.target_task() == TargetTask::Detection);
+  return evaluate(d, ests, s, "results.csv");
+}
+
+/// The fixture's truth rows (score 0.9) without the hidden block (image 1, second block: row 4).
+std::vector<PoseEstimate> visible_truth() {
+  auto ests = detection_fixture().truth();
+  for (auto& e : ests) e.score = 0.9;
+  ests.erase(ests.begin() + 4);
+  return ests;
+}
+
+}  // namespace
+
+TEST_CASE("Detection (bop24 targets): the ground truth scores bop24_mAP 1") {
+  const EvalReport r = run_detection(detection_fixture().truth());
+  REQUIRE(r.detection_computed);
+  const DetectionReport& d = r.detection;
+  CHECK(d.per_object.size() == 3);
+  CHECK(d.per_object.at(1).num_positives == 2);  // the 5 %-visible block is not a positive
+  CHECK(d.per_object.at(2).num_positives == 2);
+  CHECK(d.overall.ap == doctest::Approx(1.0));
+  CHECK(d.overall.ap_mssd == doctest::Approx(1.0));
+  CHECK(d.overall.ap_mspd == doctest::Approx(1.0));
+  CHECK(d.overall.ap_mssd_mm == doctest::Approx(1.0));
+  CHECK(format_report(r).find("bop24_mAP 1.0000") != std::string::npos);
+  const std::string json = report_json(r, {});
+  CHECK(json.find("\"bop24_mAP\": 1.0") != std::string::npos);
+  // Localization targets give no detection scores.
+  CHECK_FALSE(run(fixture().truth()).detection_computed);
+  // The curves as a PNG; an unwritable path is a FileError naming it.
+  const std::string png = test::temp_path("eval_pr_" + std::to_string(::getpid()) + ".png");
+  plot_report(r, {}, png);
+  CHECK(std::filesystem::file_size(png) > 1000);
+  std::filesystem::remove(png);
+  CHECK_THROWS_WITH_AS(plot_report(r, {}, "/nonexistent-dir/pr.png"), doctest::Contains("nonexistent-dir"),
+                       FileError);
+}
+
+TEST_CASE("Detection: a false positive ranked above the true ones, hand-worked") {
+  auto ests = visible_truth();
+  PoseEstimate fp = ests[0];  // block, image 0, 20 cm off
+  fp.T_cam_obj = Eigen::Translation3f(0.2f, 0, 0) * fp.T_cam_obj;
+  SUBCASE("scored higher") {
+    fp.score = 0.95;
+    ests.push_back(fp);
+    // Block: FP, TP, TP over 2 positives -> precision 2/3 at every recall: AP 2/3 at every threshold.
+    const EvalReport r = run_detection(ests);
+    CHECK(r.detection.per_object.at(1).ap_mssd == doctest::Approx(2.0 / 3));
+    CHECK(r.detection.per_object.at(1).ap_mspd == doctest::Approx(2.0 / 3));
+    CHECK(r.detection.per_object.at(1).num_scored == 3);
+    CHECK(r.detection.overall.ap == doctest::Approx((2.0 / 3 + 2) / 3));
+  }
+  SUBCASE("equal scores: file order within an image decides, as the toolkit's stable sorts") {
+    fp.score = 0.9;
+    ests.insert(ests.begin(), fp);  // before the true block of image 0
+    CHECK(run_detection(ests).detection.per_object.at(1).ap == doctest::Approx(2.0 / 3));
+    std::swap(ests[0], ests[1]);  // true block first: TP, FP, TP -> 1 up to recall 0.5, then 2/3
+    CHECK(run_detection(ests).detection.per_object.at(1).ap == doctest::Approx((51 + 50 * 2.0 / 3) / 101));
+  }
+  SUBCASE("scored lower: after full recall it costs nothing") {
+    fp.score = 0.1;
+    ests.push_back(fp);
+    CHECK(run_detection(ests).detection.overall.ap == doctest::Approx(1.0));
+    EvalSettings s;
+    s.max_estimates_per_image = 3;  // image 0 keeps its 3 true rows
+    const EvalReport r = run_detection(ests, s);
+    CHECK(r.detection.num_ignored_beyond_max == 1);
+    CHECK(r.detection.per_object.at(1).num_scored == 2);
+  }
+}
+
+TEST_CASE("Detection: misses, hidden instances, absent objects and symmetries") {
+  SUBCASE("a missed cylinder: recall 1/2 at precision 1") {
+    auto ests = visible_truth();
+    ests.pop_back();  // the cylinder of image 1
+    const EvalReport r = run_detection(ests);
+    CHECK(r.detection.per_object.at(2).ap == doctest::Approx(51.0 / 101));
+  }
+  SUBCASE("an estimate matched to a 5 %-visible instance is ignored, not a false positive") {
+    auto ests = detection_fixture().truth();
+    for (auto& e : ests) e.score = 0.9;
+    ests[4].score = 2;  // the hidden block, ranked first
+    const EvalReport r = run_detection(ests);
+    CHECK(r.detection.per_object.at(1).ap == doctest::Approx(1.0));
+    CHECK(r.detection.per_object.at(1).num_scored == 3);
+  }
+  SUBCASE("an object not annotated in the image is not scored (bop_toolkit)") {
+    auto ests = visible_truth();
+    PoseEstimate blob = ests[2];
+    blob.im_id = 1, blob.score = 5;
+    ests.push_back(blob);
+    const EvalReport r = run_detection(ests);
+    CHECK(r.detection.num_ignored_object_absent == 1);
+    CHECK(r.detection.overall.ap == doctest::Approx(1.0));
+  }
+  SUBCASE("a block turned a half turn about a symmetry axis is a true positive") {
+    auto ests = visible_truth();
+    ests[0].T_cam_obj = ests[0].T_cam_obj * rot({0, 0, 1}, kPi);
+    CHECK(run_detection(ests).detection.overall.ap == doctest::Approx(1.0));
+  }
+  SUBCASE("1.1 cm along the viewing ray: fails MSSD 0.05 and 0.10 of the diameter and 2-10 mm") {
+    auto ests = visible_truth();
+    const Eigen::Vector3f t = ests[0].T_cam_obj.translation();
+    ests[0].T_cam_obj = Eigen::Translation3f(0.011f * t.normalized()) * ests[0].T_cam_obj;
+    REQUIRE(0.011 / detection_fixture().block_diameter > 0.10);
+    REQUIRE(0.011 / detection_fixture().block_diameter < 0.15);
+    // Block at a failing threshold: FP (image 0 first on equal scores), then TP: precision 1/2 up to
+    // recall 1/2 (51 points); at a passing one AP 1.
+    const double fail = 51 * 0.5 / 101;
+    const EvalReport r = run_detection(ests);
+    CHECK(r.detection.per_object.at(1).ap_mssd == doctest::Approx((2 * fail + 8) / 10));
+    CHECK(r.detection.per_object.at(1).ap_mssd_mm == doctest::Approx((5 * fail + 5) / 10));
+  }
+  SUBCASE("bad settings") {
+    EvalSettings s;
+    s.max_estimates_per_image = 0;
+    CHECK_THROWS_AS(run_detection(visible_truth(), s), InvalidInput);
+  }
 }

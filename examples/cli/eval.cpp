@@ -1,4 +1,5 @@
-// perch2 eval: scores a BOP results CSV against a BOP dataset (ADD/ADD-S AUC, BOP VSD/MSSD/MSPD recalls).
+// perch2 eval: scores a BOP results CSV against a BOP dataset (ADD/ADD-S AUC, BOP VSD/MSSD/MSPD recalls;
+// with bop24 targets also the BOP 2024 detection mAP).
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -14,12 +15,14 @@ namespace {
 
 constexpr const char* kUsage =
     "usage: perch2 eval --dataset DIR --results FILE.csv [--split test] [--targets FILE] [--models DIR]\n"
-    "                   [--json OUT.json] [--no-vsd] [--vsd-delta-mm D]\n"
-    "  DIR is a BOP dataset root (models/, SPLIT/, test_targets_bop19.json); FILE.csv holds BOP results\n"
+    "                   [--json OUT.json] [--plot OUT.png] [--no-vsd] [--vsd-delta-mm D]\n"
+    "  DIR is a BOP dataset root (models/, SPLIT/, test_targets_bop19.json or _bop24.json: then the 6D\n"
+    "  detection scores of BOP 2024 too, bop24_mAP); FILE.csv holds BOP results\n"
     "  (scene_id,im_id,obj_id,score,R,t,time; t in mm). --models defaults to models_eval/ if present, else\n"
     "  models/. --no-vsd skips VSD (no rendering, no depth reading): AR = mean(AR_MSSD, AR_MSPD).\n"
     "  --vsd-delta-mm: VSD visibility tolerance (BOP: 15 mm; 5 mm for ITODD, chosen when DIR is named "
-    "itodd).\n";
+    "itodd).\n"
+    "  --plot: precision-recall curves (detection) or accuracy-threshold curves (ADD(-S)) per object.\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 eval: " << message << "\n\n" << kUsage;
@@ -27,7 +30,7 @@ int usage_error(const std::string& message) {
 }
 
 int eval_command(int argc, char** argv) {
-  std::string dataset_dir, results, json_out, delta_mm;
+  std::string dataset_dir, results, json_out, plot_out, delta_mm;
   perch2::dataset::DatasetOptions options;
   perch2::eval::EvalSettings settings;
   for (int k = 1; k < argc; ++k) {
@@ -44,6 +47,7 @@ int eval_command(int argc, char** argv) {
     const bool ok = a == "--dataset"        ? value(dataset_dir)
                     : a == "--results"      ? value(results)
                     : a == "--json"         ? value(json_out)
+                    : a == "--plot"         ? value(plot_out)
                     : a == "--split"        ? value(options.split)
                     : a == "--targets"      ? value(options.targets_file)
                     : a == "--models"       ? value(options.models_dir)
@@ -69,8 +73,12 @@ int eval_command(int argc, char** argv) {
 
   const perch2::dataset::BopDataset data(dataset_dir, options);
   const auto estimates = perch2::dataset::load_results_csv(results);
-  std::fprintf(stderr, "perch2 eval: %zu estimates, %zu targets in %s\n", estimates.size(),
-               data.targets().size(), data.targets_path().c_str());
+  if (data.target_task() == perch2::dataset::TargetTask::Detection)
+    std::fprintf(stderr, "perch2 eval: %zu estimates, 6D detection on %zu images in %s\n", estimates.size(),
+                 data.target_images().size(), data.targets_path().c_str());
+  else
+    std::fprintf(stderr, "perch2 eval: %zu estimates, %zu targets in %s\n", estimates.size(),
+                 data.targets().size(), data.targets_path().c_str());
   const auto progress = [](int done, int total) {
     if (done == total || done % 50 == 0) std::fprintf(stderr, "\r  images %d / %d", done, total);
     if (done == total) std::fprintf(stderr, "\n");
@@ -82,6 +90,10 @@ int eval_command(int argc, char** argv) {
     f << perch2::eval::report_json(report, settings);
     if (!f) throw perch2::FileError(json_out, "cannot be written");
     std::cout << "wrote " << json_out << "\n";
+  }
+  if (!plot_out.empty()) {
+    perch2::eval::plot_report(report, settings, plot_out);
+    std::cout << "wrote " << plot_out << "\n";
   }
   return 0;
 }

@@ -1,8 +1,11 @@
 """Scoring BOP results against a BOP dataset, as `perch2 eval`: ADD / ADD-S / ADD(-S) AUC (0-10 cm,
-YCB-Video toolbox), ADD-S < 1 / 2 cm and the BOP average recalls (VSD, MSSD, MSPD).
+YCB-Video toolbox), ADD-S < 1 / 2 cm and the BOP average recalls (VSD, MSSD, MSPD); with BOP 2024 targets
+(test_targets_bop24.json, images only) also the 6D detection scores (bop24_mAP).
 
     report = perch2.eval.evaluate("/data/lm", "results.csv")     # the dict `perch2 eval --json` writes
     report["overall"]["auc_add_or_adds"], report["overall"]["ar"]
+    report["detection"]["bop24_mAP"]                             # bop24 targets only
+    perch2.eval.plot("/data/lm", "results.csv", "curves.png")    # as `perch2 eval --plot`
 
 ADD(-S) is ADD-S for models with symmetries in models_info.json and ADD otherwise (`auc_add_or_adds`);
 `auc_adds` is ADD-S for every model.
@@ -13,13 +16,17 @@ import os
 
 from ._perch2 import (  # noqa: F401  (the C++ evaluator, re-exported)
     BopDataset,
+    DetectionReport,
+    DetectionScores,
     EvalReport,
     EvalSettings,
     InstanceResult,
     Scores,
     evaluate_report,
+    format_detection,
     format_report,
     load_results_csv,
+    plot_report,
     report_json,
 )
 
@@ -59,3 +66,12 @@ def evaluate(dataset, results, settings=None, **options):
     "instances"; AUCs and recalls in [0, 1]). Options as report()."""
     r, s = report(dataset, results, settings, **options)
     return json.loads(report_json(r, s))
+
+
+def plot(dataset, results, png_path, settings=None, **options):
+    """Evaluates as report() and writes the curves to png_path, as `perch2 eval --plot`: precision against
+    recall per object (detection) or accuracy against the ADD(-S) threshold (localization). Returns the
+    perch2.EvalReport."""
+    r, s = report(dataset, results, settings, **options)
+    plot_report(r, s, os.fspath(png_path))
+    return r

@@ -21,6 +21,9 @@ void bind_eval(nb::module_& m) {
   PERCH2_RW(es, EvalSettings, max_sym_disc_step);
   PERCH2_RW(es, EvalSettings, compute_vsd);
   PERCH2_RW(es, EvalSettings, time_tolerance_s);
+  PERCH2_RW(es, EvalSettings, max_estimates_per_image);
+  PERCH2_RW(es, EvalSettings, visib_gt_min);
+  PERCH2_RW(es, EvalSettings, mssd_thresholds_m);
 
   nb::class_<Scores> sc(m, "Scores", doc("Scores"));
   PERCH2_RO(sc, Scores, num_targets);
@@ -48,6 +51,21 @@ void bind_eval(nb::module_& m) {
   PERCH2_RO(ir, InstanceResult, add_line);
   PERCH2_RO(ir, InstanceResult, adds_line);
 
+  nb::class_<DetectionScores> ds(m, "DetectionScores", doc("DetectionScores"));
+  PERCH2_RO(ds, DetectionScores, num_positives);
+  PERCH2_RO(ds, DetectionScores, num_scored);
+  PERCH2_RO(ds, DetectionScores, ap_mssd);
+  PERCH2_RO(ds, DetectionScores, ap_mspd);
+  PERCH2_RO(ds, DetectionScores, ap_mssd_mm);
+  PERCH2_RO(ds, DetectionScores, ap);
+  PERCH2_RO(ds, DetectionScores, precision_at_recall);
+
+  nb::class_<DetectionReport> dr(m, "DetectionReport", doc("DetectionReport"));
+  PERCH2_RO(dr, DetectionReport, per_object);
+  PERCH2_RO(dr, DetectionReport, overall);
+  PERCH2_RO(dr, DetectionReport, num_ignored_beyond_max);
+  PERCH2_RO(dr, DetectionReport, num_ignored_object_absent);
+
   nb::class_<EvalReport> er(m, "EvalReport", doc("EvalReport"));
   er.def_ro("per_object", &EvalReport::per_object).def_ro("overall", &EvalReport::overall);
   er.def_ro("instances", &EvalReport::instances);
@@ -58,6 +76,8 @@ void bind_eval(nb::module_& m) {
   PERCH2_RO(er, EvalReport, num_images_timed);
   PERCH2_RO(er, EvalReport, mean_time_per_image_s);
   PERCH2_RO(er, EvalReport, vsd_computed);
+  PERCH2_RO(er, EvalReport, detection_computed);
+  PERCH2_RO(er, EvalReport, detection);
 
   m.def(
       "evaluate_report",
@@ -79,6 +99,9 @@ void bind_eval(nb::module_& m) {
        "\nprogress(done, total), if given, is called after each image.")
           .c_str());
   m.def("format_report", &format_report, nb::arg("report"), doc("format_report"));
+  m.def("format_detection", &format_detection, nb::arg("detection"), doc("format_detection"));
+  m.def("plot_report", &plot_report, nb::arg("report"), nb::arg("settings"), nb::arg("png_path"),
+        doc("plot_report"));
   m.def("report_json", &report_json, nb::arg("report"), nb::arg("settings") = EvalSettings{},
         doc("report_json"));
 }

@@ -7,6 +7,7 @@
 #include <memory>
 #include <numeric>
 
+#include "detection.hpp"
 #include "perch2/cpu/render.hpp"
 #include "perch2/eval/metrics.hpp"
 
@@ -34,22 +35,6 @@ struct ErrorTable {
   std::vector<double> vsd;                    // E x G x taus
   double at(const std::vector<double>& m, std::size_t e, std::size_t g) const { return m[e * G + g]; }
 };
-
-/// bop_toolkit pose_matching.match_poses(): estimates in the given order (decreasing score) each take the
-/// not yet matched GT instance with the smallest error strictly below `threshold`. Returns the matched
-/// estimate per GT instance (-1: none). `error(e, g)` gives the error.
-template <class ErrorFn>
-std::vector<int> match_greedy(std::size_t E, std::size_t G, double threshold, ErrorFn error) {
-  std::vector<int> est_of_gt(G, -1);
-  for (std::size_t e = 0; e < E; ++e) {
-    int best = -1;
-    double best_error = threshold;
-    for (std::size_t g = 0; g < G; ++g)
-      if (est_of_gt[g] < 0 && error(e, g) < best_error) best = int(g), best_error = error(e, g);
-    if (best >= 0) est_of_gt[std::size_t(best)] = int(e);
-  }
-  return est_of_gt;
-}
 
 /// True-positive counters of one metric: one per threshold (VSD: per tau x threshold).
 struct Recalls {
@@ -105,6 +90,11 @@ void validate(const EvalSettings& s) {
   if (!(s.auc_max_m > 0)) throw InvalidInput("EvalSettings::auc_max_m", "must be > 0");
   if (!(s.vsd_delta_m >= 0)) throw InvalidInput("EvalSettings::vsd_delta_m", "must be >= 0");
   if (!(s.max_sym_disc_step > 0)) throw InvalidInput("EvalSettings::max_sym_disc_step", "must be > 0");
+  positive(s.mssd_thresholds_m, "mssd_thresholds_m");
+  if (s.max_estimates_per_image < 1)
+    throw InvalidInput("EvalSettings::max_estimates_per_image", "must be >= 1");
+  if (!(s.visib_gt_min >= 0 && s.visib_gt_min <= 1))
+    throw InvalidInput("EvalSettings::visib_gt_min", "must be in [0, 1]");
 }
 
 /// Mean time per image as bop_toolkit eval_bop19_pose.py: one time per image (rows of an image must agree
@@ -149,6 +139,9 @@ struct Context {
   const std::map<std::pair<int, int>, std::map<int, std::vector<std::size_t>>>& grouped;
   const std::map<int, ObjectData>& objects;
   const cpu::Renderer* renderer;  // null: no VSD
+  // Detection (bop24 targets) only: every estimate of each image (file order) and the models to score them.
+  const std::map<std::pair<int, int>, std::vector<std::size_t>>* rows_by_image;
+  const std::map<int, detail::ScoringModel>* scoring;
 };
 
 /// True positives of one object in one image, per threshold (VSD: per tau x threshold).
@@ -160,6 +153,7 @@ struct ImageOutcome {
   std::vector<InstanceResult> instances;
   std::map<int, ObjectTp> tp;
   int evaluated = 0, beyond_top_k = 0;
+  detail::DetectionImage detection;
 };
 
 /// Valid GT of an image: the inst_count most visible instances of each target object (stable on ties), as
@@ -230,7 +224,8 @@ void instance_results(const Context& c, const ObjectData& od, const ErrorTable& 
                       int obj, const dataset::ImageInfo& info, const std::vector<std::size_t>& ests,
                       const std::vector<std::size_t>& gts, std::vector<InstanceResult>& out) {
   auto matched = [&](const std::vector<double>& m, std::vector<int>& est_of_gt) {
-    est_of_gt = match_greedy(t.E, t.G, kInf, [&](std::size_t e, std::size_t g) { return t.at(m, e, g); });
+    est_of_gt =
+        detail::match_greedy(t.E, t.G, kInf, [&](std::size_t e, std::size_t g) { return t.at(m, e, g); });
     std::vector<double> err(t.G, kInf);
     for (std::size_t g = 0; g < t.G; ++g)
       if (est_of_gt[g] >= 0) err[g] = t.at(m, std::size_t(est_of_gt[g]), g);
@@ -255,7 +250,7 @@ void instance_results(const Context& c, const ObjectData& od, const ErrorTable& 
 ObjectTp bop_true_positives(const EvalSettings& s, const ErrorTable& t, double diameter_m, double px_scale) {
   ObjectTp tp;
   auto count = [&](double threshold, auto error) {
-    const auto est_of_gt = match_greedy(t.E, t.G, threshold, error);
+    const auto est_of_gt = detail::match_greedy(t.E, t.G, threshold, error);
     return long(std::count_if(est_of_gt.begin(), est_of_gt.end(), [](int e) { return e >= 0; }));
   };
   for (const double th : s.mssd_thresholds)
@@ -313,6 +308,12 @@ ImageOutcome evaluate_image(const Context& c, std::pair<int, int> im_key,
     const ErrorTable t = error_table(c, od, info, ests, gts, K, depth_test);
     instance_results(c, od, t, im_key, obj, info, ests, gts, out.instances);
     out.tp[obj] = bop_true_positives(c.settings, t, od.info.diameter_m, 640.0 / K.width);
+  }
+  if (c.rows_by_image) {
+    const auto rows = c.rows_by_image->find(im_key);
+    out.detection = detail::detection_image(
+        c.estimates, rows == c.rows_by_image->end() ? std::vector<std::size_t>{} : rows->second, info,
+        *c.scoring, K, c.settings);
   }
   return out;
 }
@@ -374,8 +375,23 @@ EvalReport evaluate(const BopDataset& data, const std::vector<PoseEstimate>& est
   std::unique_ptr<cpu::Renderer> renderer;
   if (settings.compute_vsd && !meshes.empty()) renderer = std::make_unique<cpu::Renderer>(std::move(meshes));
 
+  // Detection: every estimate of an image counts (up to max_estimates_per_image); those in target images
+  // without annotations are of absent objects.
+  const bool detection = data.target_task() == TargetTask::Detection;
+  std::map<std::pair<int, int>, std::vector<std::size_t>> rows_by_image;
+  std::map<int, detail::ScoringModel> scoring;
+  if (detection) {
+    for (std::size_t k = 0; k < estimates.size(); ++k)
+      if (targets.count({estimates[k].scene_id, estimates[k].im_id}))
+        rows_by_image[{estimates[k].scene_id, estimates[k].im_id}].push_back(k);
+    for (const auto& [obj, od] : objects)
+      scoring[obj] = {&od.points->points(), &od.symmetries, od.info.diameter_m};
+  }
+
   // Images in parallel (each image's errors, renders and depth are its own); merged in order afterwards.
-  const Context ctx{data, estimates, settings, grouped, objects, renderer.get()};
+  const Context ctx{
+      data,    estimates, settings, grouped, objects, renderer.get(), detection ? &rows_by_image : nullptr,
+      &scoring};
   const std::vector<std::pair<std::pair<int, int>, std::map<int, int>>> work(targets.begin(), targets.end());
   std::vector<ImageOutcome> outcomes(work.size());
   std::vector<std::exception_ptr> errors(work.size());
@@ -420,6 +436,12 @@ EvalReport evaluate(const BopDataset& data, const std::vector<PoseEstimate>& est
 
   for (const auto& [obj, acc] : per_object) rep.per_object[obj] = acc.scores(settings, settings.auc_max_m);
   rep.overall = all.scores(settings, settings.auc_max_m);
+  if (detection) {
+    std::vector<detail::DetectionImage> images;
+    for (ImageOutcome& o : outcomes) images.push_back(std::move(o.detection));
+    rep.detection = detail::detection_report(images, settings);
+    rep.detection_computed = true;
+  }
   return rep;
 }
 

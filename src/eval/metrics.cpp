@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numeric>
 
 namespace perch2::eval {
 
@@ -280,6 +281,34 @@ double auc_ycb(std::vector<double> errors_m, double max_m) {
   for (std::size_t k = 1; k < mrec.size(); ++k)
     if (mrec[k] != mrec[k - 1]) area += (mrec[k] - mrec[k - 1]) * mpre[k];
   return area / max_m;
+}
+
+PrecisionRecall precision_recall(const std::vector<bool>& true_positive, int positives) {
+  PrecisionRecall pr;
+  long tp = 0;
+  for (std::size_t k = 0; k < true_positive.size(); ++k) {
+    tp += true_positive[k] ? 1 : 0;
+    pr.recall.push_back(positives > 0 ? double(tp) / double(positives) : 0.0);
+    pr.precision.push_back(double(tp) / double(k + 1));
+  }
+  return pr;
+}
+
+std::vector<double> interpolated_precision(const PrecisionRecall& pr) {
+  // calc_ap(): mrec = [0, rec, 1], mpre = [0, pre, 0]; for each r of np.linspace(0, 1, 101) (= k * 0.01, the
+  // last exactly 1) the max of mpre over mrec >= r. The sentinels only add precision 0.
+  std::vector<double> out(101, 0.0);
+  for (int k = 0; k <= 100; ++k) {
+    const double r = k == 100 ? 1.0 : k * 0.01;
+    for (std::size_t i = 0; i < pr.recall.size(); ++i)
+      if (pr.recall[i] >= r) out[std::size_t(k)] = std::max(out[std::size_t(k)], pr.precision[i]);
+  }
+  return out;
+}
+
+double average_precision(const PrecisionRecall& pr) {
+  const auto p = interpolated_precision(pr);
+  return std::accumulate(p.begin(), p.end(), 0.0) / double(p.size());
 }
 
 }  // namespace perch2::eval

@@ -34,7 +34,41 @@ nlohmann::json scores_json(const Scores& s) {
           {"ar", s.ar}};
 }
 
+nlohmann::json detection_json(const DetectionScores& s) {
+  return {{"positives", s.num_positives},
+          {"scored", s.num_scored},
+          {"ap_mssd", s.ap_mssd},
+          {"ap_mspd", s.ap_mspd},
+          {"ap_mssd_mm", s.ap_mssd_mm},
+          {"ap", s.ap},
+          {"precision_at_recall", s.precision_at_recall}};
+}
+
+std::string detection_row(const std::string& name, const DetectionScores& s) {
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "%-8s %9d %7d %7.1f %7.1f %7.1f %7.1f\n", name.c_str(), s.num_positives,
+                s.num_scored, 100 * s.ap_mssd, 100 * s.ap_mspd, 100 * s.ap, 100 * s.ap_mssd_mm);
+  return buf;
+}
+
 }  // namespace
+
+std::string format_detection(const DetectionReport& d) {
+  char head[256];
+  std::snprintf(head, sizeof head, "%-8s %9s %7s %7s %7s %7s %7s\n%-8s %9s %7s %7s %7s %7s %7s\n", "object",
+                "positives", "scored", "AP", "AP", "AP", "AP", "", "", "", "MSSD %", "MSPD %", "%",
+                "MSSD mm%");
+  std::string out = std::string("6D detection (BOP 2024):\n") + head;
+  for (const auto& [obj, s] : d.per_object) out += detection_row("obj " + std::to_string(obj), s);
+  out += detection_row("mean", d.overall);
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "bop24_mAP %.4f (MSSD %.4f, MSPD %.4f), MSSD in mm %.4f; estimates not scored: %d beyond the "
+                "best of an image, %d of objects not annotated there\n",
+                d.overall.ap, d.overall.ap_mssd, d.overall.ap_mspd, d.overall.ap_mssd_mm,
+                d.num_ignored_beyond_max, d.num_ignored_object_absent);
+  return out + buf;
+}
 
 std::string format_report(const EvalReport& r) {
   char head[256];
@@ -60,6 +94,7 @@ std::string format_report(const EvalReport& r) {
     std::snprintf(buf, sizeof buf, "mean time per image: not available (a row has a negative time)\n");
   out += buf;
   if (!r.vsd_computed) out += "VSD not computed: AR = mean(AR_MSSD, AR_MSPD)\n";
+  if (r.detection_computed) out += "\n" + format_detection(r.detection);
   return out;
 }
 
@@ -72,7 +107,10 @@ std::string report_json(const EvalReport& r, const EvalSettings& s) {
                    {"mssd_thresholds", s.mssd_thresholds},
                    {"mspd_thresholds_px", s.mspd_thresholds_px},
                    {"max_sym_disc_step", s.max_sym_disc_step},
-                   {"compute_vsd", s.compute_vsd}};
+                   {"compute_vsd", s.compute_vsd},
+                   {"max_estimates_per_image", s.max_estimates_per_image},
+                   {"visib_gt_min", s.visib_gt_min},
+                   {"mssd_thresholds_m", s.mssd_thresholds_m}};
   j["overall"] = scores_json(r.overall);
   j["per_object"] = nlohmann::json::object();
   for (const auto& [obj, sc] : r.per_object) j["per_object"][std::to_string(obj)] = scores_json(sc);
@@ -83,6 +121,19 @@ std::string report_json(const EvalReport& r, const EvalSettings& s) {
   j["mean_time_per_image_s"] = r.mean_time_per_image_s;
   j["images_timed"] = r.num_images_timed;
   j["vsd_computed"] = r.vsd_computed;
+  if (r.detection_computed) {
+    const DetectionReport& d = r.detection;
+    auto& dj = j["detection"];
+    dj["bop24_mAP"] = d.overall.ap;
+    dj["bop24_mAP_mssd"] = d.overall.ap_mssd;
+    dj["bop24_mAP_mspd"] = d.overall.ap_mspd;
+    dj["bop25_mAP_mm"] = d.overall.ap_mssd_mm;
+    dj["overall"] = detection_json(d.overall);
+    dj["per_object"] = nlohmann::json::object();
+    for (const auto& [obj, sc] : d.per_object) dj["per_object"][std::to_string(obj)] = detection_json(sc);
+    dj["ignored_beyond_max"] = d.num_ignored_beyond_max;
+    dj["ignored_object_absent"] = d.num_ignored_object_absent;
+  }
   // Infinite errors (missed instances) are written as null (nlohmann's rendering of non-finite numbers).
   auto& inst = j["instances"] = nlohmann::json::array();
   for (const auto& i : r.instances)

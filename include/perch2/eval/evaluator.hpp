@@ -16,6 +16,22 @@
 //    valid instance with the smallest error); an instance left without an estimate has error infinity.
 //    AUC over [0, 0.1 m] as the YCB-Video toolbox; ADD-S < 1 cm and < 2 cm as fractions of instances.
 //    ADD(-S) uses ADD-S for models with symmetries in models_info.json, ADD otherwise.
+//
+// 6D detection (test_targets_bop24.json: images only) is scored in addition as BOP 2024 does
+// (scripts/eval_bop24_pose.py; eval_calc_errors.py and eval_calc_scores.py in "detection" mode,
+// score.calc_pose_detection_scores(), calc_ap()):
+//  - Per image only the 100 best-scored estimates count (load_bop_results, stable on equal scores).
+//  - Errors are computed for the objects annotated in the image only, so an estimate of an object that is
+//    not there is not scored at all (the toolkit's rule; counted in num_ignored_object_absent).
+//  - Per error type and threshold, in each image and object, estimates by decreasing score each take the
+//    unmatched GT instance (any visibility) with the smallest error strictly below the threshold. An
+//    estimate matched to an instance less than visib_gt_min (10 %) visible is ignored; the instances at
+//    least that visible are the positives; every other estimate is a true or a false positive.
+//  - AP per object and threshold: its estimates over all images by decreasing score (stable: images in
+//    (scene, image) order), COCO's 101-point interpolated precision (metrics.hpp average_precision()).
+//    An object's AP = mean over thresholds; mAP = mean over objects with a positive; bop24_mAP =
+//    mean(mAP_MSSD, mAP_MSPD) (MSSD 0.05-0.5 of the diameter, MSPD 5-50 px at 640 px width); MSSD in mm
+//    (2-20 mm, bop25_mAP_mm) is reported too.
 #pragma once
 
 #include <functional>
@@ -49,6 +65,13 @@ struct EvalSettings {
   bool compute_vsd = true;
   /// Allowed difference of the time column within one image, seconds (bop_toolkit: 0.001).
   double time_tolerance_s = 0.001;
+  /// Detection (bop24 targets): estimates kept per image, the best-scored (bop_toolkit: 100).
+  int max_estimates_per_image = 100;
+  /// Detection: GT instances less visible than this are not positives, and estimates matched to them are
+  /// ignored (bop_toolkit visib_gt_min: 0.1).
+  double visib_gt_min = 0.1;
+  /// Detection: MSSD thresholds in metres (eval_bop24_pose.py: 2, 4, ..., 20 mm; bop25_mAP_mm).
+  std::vector<double> mssd_thresholds_m{0.002, 0.004, 0.006, 0.008, 0.010, 0.012, 0.014, 0.016, 0.018, 0.020};
 };
 
 /// Scores of one object (or all).
@@ -71,6 +94,25 @@ struct InstanceResult {
   int add_line = 0, adds_line = 0;                  ///< results line of the matched estimate, 0 if none
 };
 
+/// BOP 2024 detection scores of one object; in DetectionReport::overall the means over objects.
+struct DetectionScores {
+  int num_positives = 0;            ///< GT instances at least visib_gt_min visible (the recall's denominator)
+  int num_scored = 0;               ///< estimates in images where the object is annotated (TP, FP or ignored)
+  double ap_mssd = 0, ap_mspd = 0;  ///< AP averaged over the thresholds, [0, 1]
+  double ap_mssd_mm = 0;            ///< AP over the MSSD thresholds in mm
+  double ap = 0;                    ///< mean(ap_mssd, ap_mspd); overall: bop24_mAP
+  /// Interpolated precision at recall 0, 0.01, ..., 1 averaged over the MSSD and MSPD thresholds: the
+  /// curve whose mean is `ap`.
+  std::vector<double> precision_at_recall;
+};
+
+struct DetectionReport {
+  std::map<int, DetectionScores> per_object;  ///< objects with at least one positive (others do not count)
+  DetectionScores overall;                    ///< means over per_object: bop24_mAP(_mssd, _mspd)
+  int num_ignored_beyond_max = 0;     ///< estimates beyond the best max_estimates_per_image of an image
+  int num_ignored_object_absent = 0;  ///< estimates of objects not annotated in their image (not scored)
+};
+
 struct EvalReport {
   std::map<int, Scores> per_object;
   Scores overall;
@@ -82,6 +124,8 @@ struct EvalReport {
   int num_images_timed = 0;           ///< images with estimates (all with a time >= 0)
   double mean_time_per_image_s = -1;  ///< mean of the per-image times; -1 if any time is missing (< 0)
   bool vsd_computed = false;
+  bool detection_computed = false;  ///< the dataset's targets are bop24 (images only): `detection` is set
+  DetectionReport detection;
 };
 
 /// Progress: called after each evaluated image with (images done, images to do).
@@ -96,6 +140,14 @@ EvalReport evaluate(const dataset::BopDataset& data, const std::vector<dataset::
 
 /// Human-readable table: one row per object and an "all" row (AUC and recalls in percent, time).
 std::string format_report(const EvalReport& report);
+
+/// The detection scores as a table (one row per object, the mean, bop24_mAP).
+std::string format_detection(const DetectionReport& detection);
+
+/// The report's curves as a PNG at `png_path`: with detection scores, interpolated precision against recall
+/// (each curve's mean is its AP); else accuracy against the ADD(-S) threshold up to settings.auc_max_m (each
+/// curve's area is its AUC). One line per object and a thick one for all. FileError if it cannot be written.
+void plot_report(const EvalReport& report, const EvalSettings& settings, const std::string& png_path);
 
 /// The report as JSON (settings echoed, per object, overall, per instance).
 std::string report_json(const EvalReport& report, const EvalSettings& settings);

@@ -92,4 +92,20 @@ bool sphere_projections_overlap(double radius_m, const Eigen::Vector3d& p1, cons
 /// 0 for no errors.
 double auc_ycb(std::vector<double> errors_m, double max_m = 0.1);
 
+/// Precision and recall after each detection of one object, detections in order of decreasing score.
+struct PrecisionRecall {
+  std::vector<double> recall, precision;
+};
+
+/// bop_toolkit score.calc_pose_detection_scores(): recall = true positives so far / `positives`, precision
+/// = true positives so far / detections so far, after each entry of `true_positive` (by decreasing score).
+PrecisionRecall precision_recall(const std::vector<bool>& true_positive, int positives);
+
+/// Interpolated precision at recall r = 0, 0.01, ..., 1 (101 values) as bop_toolkit score.calc_ap(), which
+/// follows COCO's cocoeval: the highest precision reached at any recall >= r, 0 where none is.
+std::vector<double> interpolated_precision(const PrecisionRecall& pr);
+
+/// AP: the mean of interpolated_precision() (bop_toolkit score.calc_ap()).
+double average_precision(const PrecisionRecall& pr);
+
 }  // namespace perch2::eval
