@@ -303,7 +303,7 @@ TEST_CASE_TEMPLATE("6-DoF: poses recovered to ADD-S < 1 cm with ground-truth mas
 TEST_CASE("6-DoF: symmetric objects are found from their fewer proposals (flips not penalised)") {
   const Scene6 s = make_scene(5, {6, 7, 0});  // the bowl (continuous), the block (discrete), a can
   REQUIRE(s.instances.size() >= 2);
-  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), test_settings());
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), test_settings());
   const SixDofResult r = estimator.estimate(s.rgbd, s.instances);
   const std::size_t asymmetric = rotation_proposals(test_settings().proposals).size();
   for (std::size_t k = 0; k < s.instances.size(); ++k) {
@@ -327,7 +327,7 @@ TEST_CASE("6-DoF: two instances of one class are kept apart") {
   const Scene6 s = make_scene(11, {1}, 2);  // two cherry cans
   REQUIRE(s.instances.size() == 2);
   REQUIRE(s.instances[0].model == s.instances[1].model);
-  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), test_settings());
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), test_settings());
   const SixDofResult r = estimator.estimate(s.rgbd, s.instances);
   const Mesh& mesh = s.models[0].mesh;
   for (std::size_t k = 0; k < 2; ++k) {
@@ -367,7 +367,7 @@ TEST_CASE("6-DoF: degraded detector masks and boxes still give poses within 2 cm
         instances.push_back(in), which.push_back(k);
       }
   REQUIRE(instances.size() >= 2);
-  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), test_settings());
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), test_settings());
   const SixDofResult r = estimator.estimate(s.rgbd, instances);
   for (std::size_t j = 0; j < instances.size(); ++j) {
     const std::size_t k = which[j];
@@ -392,7 +392,7 @@ TEST_CASE("6-DoF: a mask bleeding onto the table is trimmed by depth consistency
               break;
             }
           }
-  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), test_settings());
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), test_settings());
   const SixDofResult r = estimator.estimate(s.rgbd, {grown});
   const double e = adds(r.poses[0].T_cam_obj, s.gt[0], s.models[std::size_t(grown.model)].mesh);
   INFO("ADD-S " << e << " m, trimmed " << r.trimmed_pixels[0] << " pixels");
@@ -463,7 +463,7 @@ TEST_CASE("6-DoF: the local search recovers a printed can's turn about its axis,
   // proposal had, here ~20 deg off (12 mm ADD).
   st.proposals.viewpoints = 10, st.proposals.inplane_rotations = 3;
   st.local.candidates_per_instance = 0;
-  SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   const SixDofResult off = estimator.estimate(s.rgbd, s.instances);
   estimator.settings().local = LocalSearchSettings{};
   const SixDofResult on = estimator.estimate(s.rgbd, s.instances);
@@ -491,7 +491,7 @@ TEST_CASE("6-DoF: the first pass against coarser GICP targets finds the same pos
   const Scene6 s = make_scene(3, {0, 5, 7});
   SixDofSettings st = test_settings();
   st.first_pass_target_stride = st.observed.stride;  // all observed points
-  SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   const SixDofResult all = estimator.estimate(s.rgbd, s.instances);
   for (const int stride : {4, 8}) {
     estimator.settings().first_pass_target_stride = stride;
@@ -517,7 +517,7 @@ TEST_CASE("6-DoF: after the ICP warm-up only distinct poses go on to GICP") {
   const Scene6 s = make_scene(3, {0, 5, 7});
   SixDofSettings st = test_settings();
   st.dedupe_after_warmup = false;
-  SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   const SixDofResult all = estimator.estimate(s.rgbd, s.instances);
   CHECK(all.first_pass_distinct == all.hypotheses_total);
   estimator.settings().dedupe_after_warmup = true;
@@ -543,7 +543,7 @@ TEST_CASE("6-DoF: bad local-search settings raise clear errors") {
     b.proposals.viewpoints = 2, b.proposals.inplane_rotations = 1, b.proposals.max_depths = 1;
     bad(b);
     CHECK_THROWS_WITH_AS(
-        SixDofEstimator<cpu::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, {s.instances[0]}),
+        SixDofEstimator<thrust_omp::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, {s.instances[0]}),
         doctest::Contains("local"), InvalidInput);
   }
 }
@@ -562,12 +562,12 @@ TEST_CASE("6-DoF: bad final-fit settings raise clear errors") {
     b.proposals.viewpoints = 2, b.proposals.inplane_rotations = 1, b.proposals.max_depths = 1;
     bad(b);
     CHECK_THROWS_WITH_AS(
-        SixDofEstimator<cpu::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, {s.instances[0]}),
+        SixDofEstimator<thrust_omp::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, {s.instances[0]}),
         doctest::Contains(name), InvalidInput);
   }
   SixDofSettings b = test_settings();
   b.fit_sample_spacing_m = 0;
-  CHECK_THROWS_WITH_AS(SixDofEstimator<cpu::Backend>(sixdof_models(s.models), b),
+  CHECK_THROWS_WITH_AS(SixDofEstimator<thrust_omp::Backend>(sixdof_models(s.models), b),
                        doctest::Contains("sample_spacing_m"), InvalidInput);
 }
 
@@ -575,7 +575,7 @@ TEST_CASE("6-DoF: bad inputs raise clear errors") {
   const Scene6 s = make_scene(3, {0, 5, 7});
   SixDofSettings st = test_settings();
   st.proposals.viewpoints = 2, st.proposals.inplane_rotations = 1, st.proposals.max_depths = 1;
-  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   auto with = [&](auto change) {
     std::vector<SixDofInstance> in{s.instances[0]};
     change(in[0]);
@@ -604,11 +604,11 @@ TEST_CASE("6-DoF: bad inputs raise clear errors") {
   RgbdFrame nan = s.rgbd;
   nan.depth_m.data[5] = NAN;
   CHECK_THROWS_AS(estimator.estimate(nan, {s.instances[0]}), InvalidInput);
-  CHECK_THROWS_WITH_AS(SixDofEstimator<cpu::Backend>({}), doctest::Contains("no models"), InvalidInput);
+  CHECK_THROWS_WITH_AS(SixDofEstimator<thrust_omp::Backend>({}), doctest::Contains("no models"), InvalidInput);
   SixDofSettings bad = st;
   bad.proposals.depth_step_m = -1;
   CHECK_THROWS_WITH_AS(
-      SixDofEstimator<cpu::Backend>(sixdof_models(s.models), bad).estimate(s.rgbd, {s.instances[0]}),
+      SixDofEstimator<thrust_omp::Backend>(sixdof_models(s.models), bad).estimate(s.rgbd, {s.instances[0]}),
       doctest::Contains("depth_step_m"), InvalidInput);
 }
 
@@ -680,7 +680,7 @@ TEST_CASE("6-DoF BOP helpers: instances from ground truth or detections, one res
 
   SixDofSettings st = test_settings();
   st.proposals.viewpoints = 6;  // rows, not accuracy, are tested here
-  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   SixDofResult r;
   const auto rows = estimate_bop_image(estimator, image, full, &r);
   REQUIRE(rows.size() == full.instances.size());
@@ -735,7 +735,7 @@ TEST_CASE("6-DoF BOP helpers: instances the estimator cannot pose are skipped, n
   // What is left runs (the unfiltered list would stop at instance 0's missing depth).
   SixDofSettings st = test_settings();
   st.proposals.viewpoints = 2, st.proposals.inplane_rotations = 1, st.proposals.max_depths = 1;
-  const SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   CHECK_THROWS_AS(estimator.estimate(frame, in.instances), InvalidInput);
   CHECK(estimator.estimate(frame, usable.instances).poses.size() == usable.instances.size());
   // A mask of the wrong size is an error naming it.
@@ -750,7 +750,7 @@ TEST_CASE("6-DoF: the second pass keeps the best distinct poses of each instance
   st.proposals.viewpoints = 12;
   st.keep_per_instance = 0;  // every hypothesis goes through both passes
   st.dedupe_after_warmup = false;
-  SixDofEstimator<cpu::Backend> estimator(sixdof_models(s.models), st);
+  SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   const SixDofResult all = estimator.estimate(s.rgbd, s.instances);
   CHECK(all.second_pass_hypotheses == all.hypotheses_total);
   estimator.settings().keep_per_instance = 3;
@@ -777,7 +777,7 @@ TEST_CASE("6-DoF: the second pass keeps the best distinct poses of each instance
                    +[](SixDofSettings& b) { b.distinct_rotation_rad = NAN; }}) {
     SixDofSettings b = st;
     bad(b);
-    CHECK_THROWS_AS(SixDofEstimator<cpu::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, s.instances),
+    CHECK_THROWS_AS(SixDofEstimator<thrust_omp::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, s.instances),
                     InvalidInput);
   }
 }
