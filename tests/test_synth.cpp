@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
+#include "perch2/dataset/bop.hpp"
 #include "perch2/io/io.hpp"
 #include "perch2/synth/synth.hpp"
 #include "test_support.hpp"
@@ -758,6 +759,55 @@ TEST_CASE("a tiny camera still gives a complete dataset (no size assumptions in 
   CHECK(summary.images == 1);
   CHECK(io::load_color_image((root / "test/000001/rgb/000000.png").string()).width == 40);
   CHECK(read_json(root / "detections_synth.json").is_array());
+}
+
+TEST_CASE(
+    "decoys: another print, a smaller size, other colours; in models/ with bop24 targets, never placed") {
+  const auto models = builtin_models();
+  const auto decoys = make_decoys(models, 9);
+  REQUIRE(decoys.size() == 3 * models.size());
+  auto mean_colour = [](const Mesh& m) {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    const auto& px = m.has_texture() ? m.texture.data : std::vector<Rgb8>{m.base_color};
+    for (const Rgb8& c : px) sum += Eigen::Vector3d(c.r, c.g, c.b);
+    return Eigen::Vector3d(sum / double(px.size()));
+  };
+  for (std::size_t k = 0; k < models.size(); ++k) {
+    const ObjectModel &m = models[k], &reprint = decoys[3 * k], &small = decoys[3 * k + 1],
+                      &recolour = decoys[3 * k + 2];
+    INFO(m.name);
+    CHECK(reprint.obj_id == 9 + int(3 * k));
+    CHECK(recolour.name == m.name + "_recolour");
+    // The same shape with other colours; the small one the same colours at 0.8x (diameter and symmetries).
+    CHECK(reprint.mesh.vertices == m.mesh.vertices);
+    CHECK(recolour.mesh.vertices == m.mesh.vertices);
+    CHECK(model_diameter(small.mesh) == doctest::Approx(0.8 * model_diameter(m.mesh)).epsilon(1e-4));
+    CHECK((mean_colour(small.mesh) - mean_colour(m.mesh)).norm() == 0.0);
+    CHECK((mean_colour(reprint.mesh) - mean_colour(m.mesh)).norm() > 20);  // grey ones too (block, bowl)
+    CHECK((mean_colour(recolour.mesh) - mean_colour(m.mesh)).norm() > 20);
+    CHECK((mean_colour(recolour.mesh) - mean_colour(reprint.mesh)).norm() > 10);
+    for (const Pose& T : small.symmetries.discrete) CHECK(symmetry_error(small.mesh, T) < 1e-6f);
+    if (m.mesh.has_texture()) CHECK(reprint.mesh.corner_uvs[0].x() == 1 - m.mesh.corner_uvs[0].x());
+  }
+  CHECK_THROWS_AS(make_decoys(models, 0), InvalidInput);
+
+  DatasetSettings s = small_dataset(Mode::SixDof, 5);
+  s.images_per_scene = 1, s.decoys = true, s.detection_targets = true;
+  const fs::path root = temp_path("synth_decoys");
+  fs::remove_all(root);
+  generate_dataset(models, s, root.string());
+  CHECK(read_json(root / "models/models_info.json").size() == 4 * models.size());
+  CHECK(fs::exists(root / "models/obj_000032.ply"));
+  CHECK_FALSE(fs::exists(root / "test_targets_bop19.json"));
+  const json targets = read_json(root / "test_targets_bop24.json");
+  REQUIRE(targets.size() == 1);
+  CHECK(targets[0] == json{{"im_id", 0}, {"scene_id", 1}});
+  for (const auto& gt : read_json(root / "test/000001/scene_gt.json")["0"])
+    CHECK(gt["obj_id"].get<int>() <= 8);  // only the originals are placed
+  // The dataset reads as a detection task over the 32-model catalogue.
+  const dataset::BopDataset data(root.string());
+  CHECK(data.target_task() == dataset::TargetTask::Detection);
+  CHECK(data.models_info().size() == 32);
 }
 
 TEST_CASE("bad inputs are rejected with the input named") {

@@ -13,12 +13,17 @@
 namespace {
 
 [[noreturn]] void generate_usage(const std::string& error) {
-  std::cerr << "perch2 generate: " << error
-            << "\nusage: perch2 generate --mode 3dof|6dof [--models DIR] [--model-scale S] --scenes N\n"
-               "                       [--images-per-scene M] [--objects N|MIN-MAX] --seed S --out DIR "
-               "[--preview]\n"
-               "  --objects: annotated objects per scene (default 4-7)\n"
-               "  --preview writes OUT/preview_{rgb,depth,masks}.png for scene 1, image 0\n";
+  std::cerr
+      << "perch2 generate: " << error
+      << "\nusage: perch2 generate --mode 3dof|6dof [--models DIR] [--model-scale S] --scenes N\n"
+         "                       [--images-per-scene M] [--objects N|MIN-MAX] --seed S --out DIR "
+         "[--preview]\n"
+         "                       [--decoys] [--targets bop19|bop24]\n"
+         "  --objects: annotated objects per scene (default 4-7)\n"
+         "  --decoys: models/ also holds 3 look-alikes of each model (another print, 0.8x the size, other\n"
+         "            colours), never placed: a catalogue for 6D detection\n"
+         "  --targets bop24: test_targets_bop24.json (images only: 6D detection) instead of _bop19.json\n"
+         "  --preview writes OUT/preview_{rgb,depth,masks}.png for scene 1, image 0\n";
   std::exit(2);
 }
 
@@ -60,8 +65,8 @@ int run_generate(int argc, char** argv) {
   bool have_seed = false, have_scenes = false, preview = false;
   for (int k = 2; k < argc; ++k) {
     const std::string a = argv[k];
-    if (a == "--preview") {
-      preview = true;
+    if (a == "--preview" || a == "--decoys") {
+      (a == "--preview" ? preview : settings.decoys) = true;
       continue;
     }
     if (a == "-h" || a == "--help") generate_usage("writes a synthetic BOP dataset");
@@ -87,7 +92,10 @@ int run_generate(int argc, char** argv) {
         settings.seed = std::stoull(v), have_seed = true;
       else if (a == "--out")
         out = v;
-      else
+      else if (a == "--targets") {
+        if (v != "bop19" && v != "bop24") generate_usage("--targets must be bop19 or bop24, got " + v);
+        settings.detection_targets = v == "bop24";
+      } else
         generate_usage("unknown argument " + a);
     } catch (const std::logic_error&) {
       generate_usage("bad number for " + a + ": " + v);

@@ -64,7 +64,13 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
   const auto t0 = std::chrono::steady_clock::now();
   const fs::path root(out_dir);
   detail::make_folder(root.string());
-  write_bop_models((root / "models").string(), models);
+  std::vector<ObjectModel> catalogue = models;
+  if (s.decoys) {
+    int last_id = 0;
+    for (const auto& m : models) last_id = std::max(last_id, m.obj_id);
+    for (auto& d : make_decoys(models, last_id + 1)) catalogue.push_back(std::move(d));
+  }
+  write_bop_models((root / "models").string(), catalogue);
   const Intrinsics& K = s.sensor.camera;
   write_json(root / "camera.json", json{{"cx", K.cx},
                                         {"cy", K.cy},
@@ -136,8 +142,12 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
           ++inst_count[obj_ids[k]], ++os.targets, ++summary.targets;
       }
       scene_gt[key] = gts, scene_gt_info[key] = infos;
-      for (const auto& [obj_id, n] : inst_count)
-        targets.push_back({{"im_id", im_id}, {"inst_count", n}, {"obj_id", obj_id}, {"scene_id", scene_id}});
+      if (s.detection_targets)
+        targets.push_back({{"im_id", im_id}, {"scene_id", scene_id}});
+      else
+        for (const auto& [obj_id, n] : inst_count)
+          targets.push_back(
+              {{"im_id", im_id}, {"inst_count", n}, {"obj_id", obj_id}, {"scene_id", scene_id}});
 
       for (const Detection& d : simulate_detections(f, obj_ids, models, s.detection, rng)) {
         detections.push_back(
@@ -162,7 +172,7 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
     write_json(dir / "scene_gt_info.json", scene_gt_info);
     ++summary.scenes;
   }
-  write_json(root / "test_targets_bop19.json", targets);
+  write_json(root / (s.detection_targets ? "test_targets_bop24.json" : "test_targets_bop19.json"), targets);
   write_json(root / s.detections_file, detections);
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return summary;

@@ -315,6 +315,60 @@ std::vector<ObjectModel> builtin_models() {
   return out;
 }
 
+namespace {
+
+/// The colour with its hue turned by `degrees` (HSV), saturation at least `min_saturation`, value kept.
+Rgb8 turn_hue(Rgb8 c, float degrees, float min_saturation) {
+  const float r = c.r / 255.f, g = c.g / 255.f, b = c.b / 255.f;
+  const float v = std::max({r, g, b}), d = v - std::min({r, g, b});
+  float h = 0;  // degrees
+  if (d > 0)
+    h = v == r   ? 60 * std::fmod((g - b) / d + 6, 6.f)
+        : v == g ? 60 * ((b - r) / d + 2)
+                 : 60 * ((r - g) / d + 4);
+  const float sat = std::max(v > 0 ? d / v : 0.f, min_saturation);
+  h = std::fmod(h + degrees + 360.f, 360.f);
+  const float c2 = v * sat, x = c2 * (1 - std::abs(std::fmod(h / 60, 2.f) - 1)), m = v - c2;
+  float rgb[3];
+  const int sector = int(h / 60) % 6;
+  const float table[6][3] = {{c2, x, 0}, {x, c2, 0}, {0, c2, x}, {0, x, c2}, {x, 0, c2}, {c2, 0, x}};
+  for (int k = 0; k < 3; ++k) rgb[k] = table[sector][k] + m;
+  auto to8 = [](float f) { return std::uint8_t(std::clamp(std::lround(f * 255), 0l, 255l)); };
+  return {to8(rgb[0]), to8(rgb[1]), to8(rgb[2])};
+}
+
+/// Every colour of the mesh (texture, vertex colours, base colour) with its hue turned.
+void turn_hues(Mesh& m, float degrees) {
+  constexpr float kMinSaturation = 0.5f;
+  for (auto& c : m.texture.data) c = turn_hue(c, degrees, kMinSaturation);
+  for (auto& c : m.vertex_colors) c = turn_hue(c, degrees, kMinSaturation);
+  m.base_color = turn_hue(m.base_color, degrees, kMinSaturation);
+}
+
+}  // namespace
+
+std::vector<ObjectModel> make_decoys(const std::vector<ObjectModel>& models, int first_obj_id) {
+  if (first_obj_id < 1) throw InvalidInput("make_decoys first_obj_id", "must be >= 1");
+  std::vector<ObjectModel> out;
+  for (const ObjectModel& m : models) {
+    ObjectModel reprint = m, small = m, recolour = m;
+    reprint.name = m.name + "_reprint", small.name = m.name + "_small", recolour.name = m.name + "_recolour";
+    for (auto& uv : reprint.mesh.corner_uvs) uv.x() = 1 - uv.x();  // the print mirrored ...
+    turn_hues(reprint.mesh, 150);                                  // ... in other hues
+    constexpr float kScale = 0.8f;
+    for (auto& v : small.mesh.vertices) v *= kScale;
+    for (auto& d : small.symmetries.discrete) d.translation() *= kScale;
+    for (auto& c : small.symmetries.continuous) c.offset_m *= kScale;
+    turn_hues(recolour.mesh, 90);
+    for (ObjectModel* d : {&reprint, &small, &recolour}) {
+      d->obj_id = first_obj_id + int(out.size());
+      d->mesh.name = d->name;
+      out.push_back(std::move(*d));
+    }
+  }
+  return out;
+}
+
 std::vector<ObjectModel> load_user_models(const std::string& dir, const UserModelSettings& settings) {
   if (!fs::is_directory(dir)) throw FileError(dir, "model folder not found");
   std::vector<fs::path> files;  // relative to dir, any depth (e.g. YCB's one folder per object)

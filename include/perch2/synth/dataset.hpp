@@ -28,6 +28,12 @@ struct DatasetSettings {
   std::string split = "test";
   std::string detections_file = "detections_synth.json";
   float target_min_visible_fraction = 0.1f;  ///< BOP'19 targets: instances at least this visible
+  /// models/ also holds make_decoys() of the models (obj_ids after the largest), which are never placed:
+  /// a catalogue of look-alikes for 6D detection.
+  bool decoys = false;
+  /// Write BOP 2024's test_targets_bop24.json (the images only: 6D detection, nothing said about what is
+  /// in them) instead of test_targets_bop19.json.
+  bool detection_targets = false;
   SceneSettings scene;
   SensorSettings sensor;
   DetectionSettings detection;

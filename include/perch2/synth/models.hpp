@@ -46,6 +46,16 @@ struct ObjectModel {
 /// lengths (8, 180-degree turns about x, y and z).
 PERCH2_API std::vector<ObjectModel> builtin_models();
 
+/// Look-alikes of `models` for detection over a catalogue: models a detector must not report when only the
+/// originals are in the scene. Three per model, obj_ids first_obj_id, first_obj_id + 1, ...:
+///  - NAME_reprint: the same shape with another print (texture mirrored left-right and its hues turned by
+///    150 deg; an untextured model's colours turned the same way);
+///  - NAME_small: the same print at 0.8x the size (a smaller pack of the same product);
+///  - NAME_recolour: the same shape and print in other colours (hues turned by 90 deg, lightness kept).
+/// Colours of little saturation get some (0.5) before their hue is turned, so a grey model's decoys differ
+/// from it too. Symmetries and materials are kept (scaled with the model).
+PERCH2_API std::vector<ObjectModel> make_decoys(const std::vector<ObjectModel>& models, int first_obj_id);
+
 /// A surface of revolution about z: `profile` is (radius, z) in metres from one pole to the other (first
 /// and last radius 0 give a closed surface). Texture coordinates: u = angle / 2 pi, v = arc length along the
 /// profile / total length (v = 0 at the first point). Winding is made outward.
