@@ -213,6 +213,24 @@ float yaw_error_rad(const Pose& T_world_obj, const Pose& truth) {
 
 }  // namespace
 
+namespace {
+
+/// The red can (model 0) at (0.08, 0.06) and the green one (model 1) at (-0.09, -0.02) m, each within 1 cm
+/// (the grid is 8 cm; ICP brings the can onto the observed surface; 1 cm is the paper's ADD-S bar). Returns
+/// the red can's pose.
+const TabletopPose* two_cans_found(const TabletopResult& r) {
+  REQUIRE(r.poses.size() == 2);
+  const TabletopPose* red = pose_of(r, 0);
+  const TabletopPose* green = pose_of(r, 1);
+  REQUIRE(red);
+  REQUIRE(green);
+  CHECK(xy_error(*red, 0.08f, 0.06f) < 0.01f);
+  CHECK(xy_error(*green, -0.09f, -0.02f) < 0.01f);
+  return red;
+}
+
+}  // namespace
+
 TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-label models", B,
                    PERCH2_CPU_RUNNABLE_BACKENDS) {
   const RgbdFrame frame = render_scene(can_meshes(), {{0, 0.08f, 0.06f, 0.3f}, {1, -0.09f, -0.02f, 1.1f}});
@@ -220,14 +238,7 @@ TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-
   settings.keep_scored = true;
   const TabletopEstimator<B> estimator(can_models(), settings);
   const TabletopResult r = estimator.estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
-  REQUIRE(r.poses.size() == 2);
-  const TabletopPose* red = pose_of(r, 0);
-  const TabletopPose* green = pose_of(r, 1);
-  REQUIRE(red);
-  REQUIRE(green);
-  // The grid is 8 cm; ICP brings the can onto the observed surface. 1 cm is the paper's ADD-S bar.
-  CHECK(xy_error(*red, 0.08f, 0.06f) < 0.01f);
-  CHECK(xy_error(*green, -0.09f, -0.02f) < 0.01f);
+  const TabletopPose* red = two_cans_found(r);
   CHECK(red->cost.rendered_inliers > int(0.9f * float(red->cost.rendered_points)));
   CHECK(r.hypotheses_grid > r.hypotheses_kept);
   CHECK(r.hypotheses_kept == r.hypotheses_refined);
@@ -247,6 +258,37 @@ TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-
   MESSAGE(std::string(B::name) << ": " << r.hypotheses_grid << " grid, " << r.hypotheses_kept
                                << " kept; total " << r.timings.total << " s (render " << r.timings.render
                                << ", refine " << r.timings.refine << ", cost " << r.timings.cost << ")");
+}
+
+TEST_CASE("3-DoF detection: no counts given, each can found once, the look-alike not reported") {
+  // Two cans on the table (depth noise 3 mm: costs above 0); the catalogue also holds a can of the same
+  // shape in other colours.
+  RgbdFrame frame = render_scene(can_meshes(), {{0, 0.08f, 0.06f, 0.3f}, {1, -0.09f, -0.02f, 1.1f}});
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0.f, 0.003f);
+  for (float& z : frame.depth_m.data)
+    if (z > 0) z += noise(rng);
+  std::vector<TabletopModel> catalogue = can_models();
+  catalogue.push_back({make_can(kBlue, kRed, "blue_can")});
+  const TabletopEstimator<thrust_omp::Backend> estimator(catalogue);
+  const TabletopResult r = estimator.detect(frame, {}, camera_pose());
+  REQUIRE(r.poses.size() == 2);
+  CHECK(r.missing.empty());
+  CHECK(r.poses[0].score <= r.poses[1].score);  // best first
+  CHECK(two_cans_found(r)->instance == 0);
+  TabletopDetectSettings d;
+  d.max_per_frame = 1;
+  CHECK(estimator.detect(frame, d, camera_pose()).poses.size() == 1);
+  // min_score between the two poses' BOP scores (1 / (1 + cost)) keeps the better one.
+  const float s0 = 1.f / (1.f + r.poses[0].score), s1 = 1.f / (1.f + r.poses[1].score);
+  INFO("scores " << s0 << ", " << s1);
+  REQUIRE(s0 > s1);
+  d = {};
+  d.min_score = 0.5f * (s0 + s1);
+  CHECK(estimator.detect(frame, d, camera_pose()).poses.size() == 1);
+  d = {};
+  d.max_per_model = 0;
+  CHECK_THROWS_WITH_AS(estimator.detect(frame, d), doctest::Contains("max_per_model"), InvalidInput);
 }
 
 TEST_CASE("hypotheses that ICP leaves mostly unmatched (bare table) are dropped before scoring") {

@@ -447,7 +447,23 @@ void bind_estimators(nb::module_& m) {
           "or None\n"
           "(the RGB-D cost needs it); K: 3 x 3 or perch2.Intrinsics; objects: {model: count}; T_cam_world: "
           "the\n"
-          "table frame -> camera (4 x 4), or None to estimate the table plane. Copies the arrays once.");
+          "table frame -> camera (4 x 4), or None to estimate the table plane. Copies the arrays once.")
+      .def(
+          "detect",
+          [](const PyTabletop& e, nb::handle depth, nb::handle rgb, nb::handle K,
+             std::optional<TabletopDetectSettings> settings, nb::handle T_cam_world,
+             std::optional<float> depth_scale_m) {
+            const RgbdFrame frame = frame_from(depth, rgb, K, depth_scale_m);
+            std::optional<Pose> T;
+            if (!T_cam_world.is_none()) T = pose_from(T_cam_world, "T_cam_world");
+            const TabletopDetectSettings d = settings.value_or(TabletopDetectSettings{});
+            return e.call([&](const auto& x) { return x.detect(frame, d, T); });
+          },
+          nb::arg("depth"), nb::arg("rgb").none(), nb::arg("K"), nb::arg("settings").none() = nb::none(),
+          nb::arg("T_cam_world").none() = nb::none(), nb::arg("depth_scale_m").none() = nb::none(),
+          (std::string(doc("TabletopEstimator.detect")) +
+           "\ndepth, rgb, K and T_cam_world as in estimate(). Copies the arrays once.")
+              .c_str());
 
   // ---- 6-DoF
   nb::class_<ProposalSettings> ps(m, "ProposalSettings", doc("ProposalSettings"));
@@ -702,6 +718,12 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(sr, SixDofResult, peak_chunk_bytes);
   PERCH2_RO(sr, SixDofResult, fits_kept);
   PERCH2_RO(sr, SixDofResult, timings);
+
+  nb::class_<TabletopDetectSettings> tds(m, "TabletopDetectSettings", doc("TabletopDetectSettings"));
+  tds.def(nb::init<>());
+  PERCH2_RW(tds, TabletopDetectSettings, max_per_model);
+  PERCH2_RW(tds, TabletopDetectSettings, max_per_frame);
+  PERCH2_RW(tds, TabletopDetectSettings, min_score);
 
   nb::class_<DetectSettings> dts(m, "DetectSettings", doc("DetectSettings"));
   dts.def(nb::init<>());

@@ -131,7 +131,14 @@ struct BopRunner::Impl {
                   const std::vector<Target>& targets) const {
     ImageResult out;
     TabletopResult r;
-    out.rows = estimate_bop_image(e, image, targets, model_of, &r);
+    if (detection) {  // bop24 targets: every model, as many as placed (RunOptions::detect's caps)
+      TabletopDetectSettings d;
+      d.max_per_model = options.detect.max_per_model, d.max_per_frame = options.detect.max_per_frame;
+      d.min_score = options.detect.min_score;
+      out.rows = detect_bop_image(e, image, obj_ids, d, &r);
+    } else {
+      out.rows = estimate_bop_image(e, image, targets, model_of, &r);
+    }
     for (const auto& p : r.poses) out.row_models.push_back(p.model), out.row_found.push_back(true);
     for (const auto& t : targets) out.requested += t.inst_count;
     for (const auto& m : r.missing) out.missing += m.count;
@@ -209,10 +216,6 @@ BopRunner::BopRunner(const BopDataset& data, RunOptions options, std::vector<int
   Impl& m = *impl_;
   m.targets = targets_by_image(data.targets());
   m.detection = data.target_task() == TargetTask::Detection;
-  if (m.detection && m.options.mode == RunMode::Tabletop)
-    throw InvalidInput("--mode 3dof", data.targets_path() +
-                                          " sets 6D detection (images only): the 3-DoF search needs objects "
-                                          "and counts (test_targets_bop19.json); use --mode 6dof");
   if (m.detection && m.obj_ids.empty())  // the whole catalogue
     for (const auto& [id, info] : data.models_info()) m.obj_ids.push_back(id);
   if (m.obj_ids.empty()) {

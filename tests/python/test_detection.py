@@ -81,8 +81,26 @@ def test_detection_targets_with_ground_truth_masks_estimate_every_annotated_inst
     assert sorted(int(r["obj_id"]) for r in rows_of(out)) == sorted(g["obj_id"] for g in gt)
 
 
-def test_detection_targets_ask_for_the_6dof_search(cli, dataset_6dof, tmp_out):
-    blind, _ = bop24_copy(dataset_6dof, tmp_out / "blind3", ground_truth=False)
-    p = subprocess.run([cli, "estimate", "--mode", "3dof", "--dataset", str(blind), "--out", str(tmp_out / "x.csv")],
-                       capture_output=True, text=True)
-    assert p.returncode != 0 and "--mode 6dof" in p.stderr, p.stderr
+def test_3dof_detection_finds_the_upright_objects_of_the_catalogue(cli, dataset_3dof, tmp_out):
+    blind, image = bop24_copy(dataset_3dof, tmp_out / "blind3", ground_truth=False)
+    out = tmp_out / "det3.csv"
+    p = run(cli, "estimate", "--mode", "3dof", "--dataset", blind, "--out", out)
+    rows = rows_of(out)
+    assert rows and all((int(r["scene_id"]), int(r["im_id"])) == image for r in rows), p.stdout
+    scores = [float(r["score"]) for r in rows]
+    assert scores == sorted(scores, reverse=True) and all(0 <= x <= 1 for x in scores)
+    scored, _ = bop24_copy(dataset_3dof, tmp_out / "scored3", ground_truth=True)
+    run(cli, "eval", "--dataset", scored, "--results", out, "--json", tmp_out / "eval3.json", "--no-vsd")
+    det = json.loads((tmp_out / "eval3.json").read_text())["detection"]
+    assert det["bop24_mAP"] >= 0.8, det
+    # Python: TabletopEstimator.detect on the same image (models without the yaw symmetries models_info gives
+    # the CLI's): best first, within its caps, the CLI's best detection among its own.
+    ds = perch2.BopDataset(str(blind), ground_truth=False)
+    obj_ids = sorted(ds.models_info())
+    estimator = perch2.TabletopEstimator([ds.load_model(i) for i in obj_ids])
+    im = ds.load_image(*image)
+    settings = perch2.TabletopDetectSettings()
+    settings.max_per_model = 2
+    r = estimator.detect(im.frame.depth_m, im.frame.rgb, im.frame.camera, settings, T_cam_world=im.info.T_cam_world)
+    assert [q.score for q in r.poses] == sorted(q.score for q in r.poses) and not r.missing
+    assert int(rows[0]["obj_id"]) in {obj_ids[q.model] for q in r.poses}

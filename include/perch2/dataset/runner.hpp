@@ -67,7 +67,9 @@ struct RunOptions {
   std::string masks = "gt";
   BoxKind box = BoxKind::Full;  ///< 6-DoF with "gt" masks: scene_gt_info's amodal bbox_obj, or bbox_visib
   SixDofSettings sixdof;
-  DetectSettings detect;  ///< 6-DoF, masks "none", detection targets: what detect() may report
+  /// Detection targets (bop24): what detect() may report (6-DoF with masks "none"; 3-DoF: its caps and
+  /// min_score, the colour limit is the 6-DoF search's).
+  DetectSettings detect;
   /// 6-DoF: an instance with fewer valid depth readings inside its mask (on the observed grid, once later
   /// masks have taken their pixels) is skipped and counted in ImageResult::unusable.
   int min_instance_points = 10;

@@ -54,6 +54,7 @@
 //   tree.hpp, bf_icp.hpp       the Tree search (Perch2B, Perch) and BF-ICP's fitness
 #pragma once
 
+#include <algorithm>
 #include <optional>
 #include <string>
 #include <utility>
@@ -103,7 +104,20 @@ class TabletopEstimator {
   TabletopResult estimate(const RgbdFrame& frame, const std::vector<ObjectCount>& objects,
                           const std::optional<Pose>& T_cam_world = std::nullopt) const;
 
+  /// 3-DoF detection (BOP 2024's task for upright objects): no objects or counts given. Every model is
+  /// searched up to max_per_model times (not strict, whatever the settings say); selection places acceptable,
+  /// non-overlapping poses, the best explanation first, so a look-alike is placed only where no better model
+  /// took the place. Poses best score first (TabletopPose::instance = rank within its model), at most
+  /// max_per_frame, each with 1 / (1 + score) >= min_score; `missing` is empty. InvalidInput on bad
+  /// settings, and as estimate() on a bad frame.
+  TabletopResult detect(const RgbdFrame& frame, const TabletopDetectSettings& settings = {},
+                        const std::optional<Pose>& T_cam_world = std::nullopt) const;
+
  private:
+  /// estimate()'s search; `strict`: throw when requested instances are missing.
+  TabletopResult search(const RgbdFrame& frame, const std::vector<ObjectCount>& objects,
+                        const std::optional<Pose>& T_cam_world, bool strict) const;
+
   tabletop_detail::Context<Backend> ctx_;  ///< models, settings, renderer, footprints
 };
 
@@ -119,6 +133,37 @@ template <class Backend>
 TabletopResult TabletopEstimator<Backend>::estimate(const RgbdFrame& frame,
                                                     const std::vector<ObjectCount>& objects,
                                                     const std::optional<Pose>& T_cam_world) const {
+  return search(frame, objects, T_cam_world, ctx_.settings.strict_instances);
+}
+
+template <class Backend>
+TabletopResult TabletopEstimator<Backend>::detect(const RgbdFrame& frame, const TabletopDetectSettings& d,
+                                                  const std::optional<Pose>& T_cam_world) const {
+  if (d.max_per_model < 1) throw InvalidInput("TabletopDetectSettings::max_per_model", "must be >= 1");
+  if (d.max_per_frame < 1) throw InvalidInput("TabletopDetectSettings::max_per_frame", "must be >= 1");
+  if (!(d.min_score >= 0.f && d.min_score <= 1.f))
+    throw InvalidInput("TabletopDetectSettings::min_score", "must be in [0, 1]");
+  std::vector<ObjectCount> every;
+  for (std::size_t m = 0; m < ctx_.models.size(); ++m) every.push_back({int(m), d.max_per_model});
+  TabletopResult r = search(frame, every, T_cam_world, false);
+  r.missing.clear();
+  std::stable_sort(r.poses.begin(), r.poses.end(),
+                   [](const TabletopPose& a, const TabletopPose& b) { return a.score < b.score; });
+  std::vector<TabletopPose> kept;
+  std::vector<int> rank(ctx_.models.size(), 0);
+  for (TabletopPose& p : r.poses) {
+    if (int(kept.size()) == d.max_per_frame || 1.f / (1.f + std::max(0.f, p.score)) < d.min_score) break;
+    p.instance = rank[std::size_t(p.model)]++;
+    kept.push_back(std::move(p));
+  }
+  r.poses = std::move(kept);
+  return r;
+}
+
+template <class Backend>
+TabletopResult TabletopEstimator<Backend>::search(const RgbdFrame& frame,
+                                                  const std::vector<ObjectCount>& objects,
+                                                  const std::optional<Pose>& T_cam_world, bool strict) const {
   using namespace tabletop_detail;
   const TabletopSettings& s = ctx_.settings;
   const auto t_start = Clock::now();
@@ -152,7 +197,7 @@ TabletopResult TabletopEstimator<Backend>::estimate(const RgbdFrame& frame,
   if (s.mode == SearchMode::Parallel) polish(ctx_, f, result);
   if (s.mode != SearchMode::BruteForceIcp) search_yaws(ctx_, f, result);
 
-  if (!result.missing.empty() && s.strict_instances) {
+  if (!result.missing.empty() && strict) {
     const ObjectCount& m = result.missing.front();
     throw InvalidInput("objects", "model " + std::to_string(m.model) + " ('" +
                                       ctx_.models[m.model].mesh.name + "'): " + std::to_string(m.count) +

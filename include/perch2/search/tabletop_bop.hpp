@@ -51,6 +51,27 @@ inline TabletopModel tabletop_model(Mesh mesh, const dataset::ModelInfo& info) {
   return {std::move(mesh), symmetric_about_z(info), std::nullopt};
 }
 
+namespace tabletop_detail {
+
+/// One BOP row per pose: score = 1 / (1 + selection score) (BOP: higher is better; the cost is >= 0).
+template <class ObjIdOf>
+std::vector<dataset::PoseEstimate> bop_rows(const dataset::BopImage& image, TabletopResult r, double seconds,
+                                            ObjIdOf obj_id_of, TabletopResult* result) {
+  std::vector<dataset::PoseEstimate> rows;
+  for (const auto& p : r.poses) {
+    dataset::PoseEstimate e;
+    e.scene_id = image.info.scene_id, e.im_id = image.info.im_id, e.obj_id = obj_id_of(p.model);
+    e.score = 1.0 / (1.0 + std::max(0.0, double(p.score)));
+    e.T_cam_obj = p.T_cam_obj;
+    e.time_s = seconds;
+    rows.push_back(e);
+  }
+  if (result) *result = std::move(r);
+  return rows;
+}
+
+}  // namespace tabletop_detail
+
 /// Estimates the targets of one image (all of image.info's scene_id, im_id; their obj_ids must be in
 /// model_of_obj_id) with the table frame of scene_camera.json when given. One BOP row per pose found: score =
 /// 1 / (1 + selection score), time = the wall clock of estimate(). `result`, if given, receives the full
@@ -78,17 +99,27 @@ std::vector<dataset::PoseEstimate> estimate_bop_image(const TabletopEstimator<Ba
   const auto t0 = std::chrono::steady_clock::now();
   TabletopResult r = estimator.estimate(image.frame, request, image.info.T_cam_world);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  std::vector<dataset::PoseEstimate> rows;
-  for (const auto& p : r.poses) {
-    dataset::PoseEstimate e;
-    e.scene_id = scene_id, e.im_id = im_id, e.obj_id = obj_id_of.at(p.model);
-    e.score = 1.0 / (1.0 + std::max(0.0, double(p.score)));  // BOP: higher is better; cost is >= 0
-    e.T_cam_obj = p.T_cam_obj;
-    e.time_s = seconds;
-    rows.push_back(e);
-  }
-  if (result) *result = std::move(r);
-  return rows;
+  return tabletop_detail::bop_rows(
+      image, std::move(r), seconds, [&](int m) { return obj_id_of.at(m); }, result);
+}
+
+/// 3-DoF detection on one image (bop24 targets: no objects or counts): TabletopEstimator::detect over every
+/// model, model m being obj_ids[m], with the table frame of scene_camera.json when given. Rows as
+/// estimate_bop_image's, best score first.
+template <class Backend>
+std::vector<dataset::PoseEstimate> detect_bop_image(const TabletopEstimator<Backend>& estimator,
+                                                    const dataset::BopImage& image,
+                                                    const std::vector<int>& obj_ids,
+                                                    const TabletopDetectSettings& settings,
+                                                    TabletopResult* result = nullptr) {
+  if (obj_ids.size() != estimator.models().size())
+    throw InvalidInput("obj_ids", std::to_string(obj_ids.size()) + " for " +
+                                      std::to_string(estimator.models().size()) + " models");
+  const auto t0 = std::chrono::steady_clock::now();
+  TabletopResult r = estimator.detect(image.frame, settings, image.info.T_cam_world);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return tabletop_detail::bop_rows(
+      image, std::move(r), seconds, [&](int m) { return obj_ids[std::size_t(m)]; }, result);
 }
 
 }  // namespace perch2

@@ -240,4 +240,13 @@ inline TabletopSettings tabletop_variant(SearchVariant v, TabletopSettings base 
   return base;
 }
 
+/// TabletopEstimator::detect(): no objects or counts given.
+struct TabletopDetectSettings {
+  int max_per_model = 8;    ///< instances of one model at most per frame (>= 1)
+  int max_per_frame = 100;  ///< detections at most per frame, the best scored (>= 1; BOP 2024 scores 100)
+  /// A detection is reported only with at least this score, 1 / (1 + selection score) as in the BOP rows
+  /// (in [0, 1]).
+  float min_score = 0.f;
+};
+
 }  // namespace perch2
