@@ -1,6 +1,6 @@
 // 6-DoF without a detector (SixDofEstimator::estimate_scene): the frame's segments and the scene explained
-// object by object, on small generated tabletop scenes whose layout each test sets. The behaviour is tested on
-// the production backend's CPU build (thrust_omp); that the reference backend finds the same is the
+// object by object, on small generated tabletop scenes whose layout each test sets. The behaviour is tested
+// on the production backend's CPU build (thrust_omp); that the reference backend finds the same is the
 // two-backend case's (and test_search6dof's), which keeps the sanitizer build's run short (the reference
 // backend's small Eigen products are 10x slower under ASan, thrust_omp 2.5x).
 #include <doctest/doctest.h>
@@ -285,7 +285,8 @@ TEST_CASE("6-DoF scene: an object split in two by an occluder is found once") {
 
 TEST_CASE(
     "6-DoF scene: absent objects are missing, an empty table gives no pose, a distractor is not a model") {
-  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(synth::builtin_models()), test_settings());
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(synth::builtin_models()),
+                                                       test_settings());
   SUBCASE("a requested instance that is not in the scene") {
     const Table t = make_table({{kCola, 0.f, 0.f, 0.f}});
     const SixDofSceneResult r = estimator.estimate_scene(t.rgbd, {{kCola, 1}, {kBlock, 1}});
@@ -455,8 +456,9 @@ TEST_CASE("6-DoF scene: an object with a distractor stacked on it is found in a 
   REQUIRE(r.poses.size() == 1);
   CHECK(nearest_gt(t, kBox, r.poses[0].T_cam_obj).second < 0.01);
   s.scene.piece_area_faces = 1e9f;  // the extent rule alone: one job on the whole segment
-  CHECK(SixDofEstimator<thrust_omp::Backend>(sixdof_models(t.models), s).estimate_scene(t.rgbd, {{kBox, 1}}).jobs ==
-        1);
+  CHECK(SixDofEstimator<thrust_omp::Backend>(sixdof_models(t.models), s)
+            .estimate_scene(t.rgbd, {{kBox, 1}})
+            .jobs == 1);
 }
 
 TEST_CASE("6-DoF scene: an object sharing a segment with a placed neighbour is found on what it leaves") {

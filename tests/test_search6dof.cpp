@@ -604,7 +604,8 @@ TEST_CASE("6-DoF: bad inputs raise clear errors") {
   RgbdFrame nan = s.rgbd;
   nan.depth_m.data[5] = NAN;
   CHECK_THROWS_AS(estimator.estimate(nan, {s.instances[0]}), InvalidInput);
-  CHECK_THROWS_WITH_AS(SixDofEstimator<thrust_omp::Backend>({}), doctest::Contains("no models"), InvalidInput);
+  CHECK_THROWS_WITH_AS(SixDofEstimator<thrust_omp::Backend>({}), doctest::Contains("no models"),
+                       InvalidInput);
   SixDofSettings bad = st;
   bad.proposals.depth_step_m = -1;
   CHECK_THROWS_WITH_AS(
@@ -777,7 +778,8 @@ TEST_CASE("6-DoF: the second pass keeps the best distinct poses of each instance
                    +[](SixDofSettings& b) { b.distinct_rotation_rad = NAN; }}) {
     SixDofSettings b = st;
     bad(b);
-    CHECK_THROWS_AS(SixDofEstimator<thrust_omp::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, s.instances),
-                    InvalidInput);
+    CHECK_THROWS_AS(
+        SixDofEstimator<thrust_omp::Backend>(sixdof_models(s.models), b).estimate(s.rgbd, s.instances),
+        InvalidInput);
   }
 }
