@@ -335,6 +335,8 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
                       << p.cost.observed_color_outliers << ")");
     CHECK(e < 0.01);
     CHECK((p.score >= 0 && p.score <= 1));
+    CHECK(p.depth_agreement > 0.8f);  // the readings show its visible surface, pixel by pixel
+    CHECK(p.score <= p.depth_agreement);
     if (k > 0) CHECK(p.score <= r.poses[k - 1].score);  // best first
     CHECK(p.instance == p.model);
     models.insert(p.model);
@@ -342,6 +344,16 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
   CHECK(r.poses.size() == 2);
   CHECK(models == std::set<int>{kCola, kBox});
   CHECK(r.missing.empty());
+
+  // Every screened model searched on every segment finds the same two.
+  DetectSettings every_model;
+  every_model.max_models_per_segment = 0;
+  const SixDofSceneResult all = estimator.detect(t.rgbd, every_model);
+  CHECK(all.retrieved_out == 0);
+  CHECK(all.jobs >= r.jobs + r.retrieved_out);
+  std::set<int> all_models;
+  for (const SixDofPose& p : all.poses) all_models.insert(p.model);
+  CHECK(all_models == models);
 
   // What the rendered-colour test is for: without it a can of another print fits the plain box's faces.
   DetectSettings shape_only;
@@ -356,6 +368,33 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
   bad = DetectSettings{};
   bad.min_score = NAN;
   CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("min_score"), InvalidInput);
+  bad = DetectSettings{};
+  bad.max_models_per_segment = -1;
+  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("max_models_per_segment"),
+                       InvalidInput);
+}
+
+TEST_CASE("6-DoF detection retrieval: the best-covering models per segment, ties kept, n per object") {
+  using sixdof_detail::Job;
+  auto job = [](std::int32_t segment, int model, float fraction) {
+    Job j;
+    j.label = segment, j.model = model, j.colour_fraction = fraction;
+    return j;
+  };
+  // Segment 1, one piece per model: 0 and 1 tie for the best. Segment 2, two pieces per model (two
+  // objects' room): the two best models by their best piece.
+  std::vector<Job> jobs{job(1, 0, 0.9f), job(1, 1, 0.9f), job(1, 2, 0.5f), job(1, 3, 0.2f),
+                        job(2, 0, 0.4f), job(2, 0, 0.8f), job(2, 1, 0.6f), job(2, 1, 0.6f),
+                        job(2, 2, 0.7f), job(2, 2, 0.1f), job(2, 3, 0.1f), job(2, 3, 0.1f)};
+  std::vector<Job> kept = jobs;
+  sixdof_detail::keep_best_models(kept, 1);
+  std::set<std::pair<int, int>> got;
+  for (const Job& j : kept) got.insert({int(j.label), j.model});
+  CHECK(got == std::set<std::pair<int, int>>{{1, 0}, {1, 1}, {2, 0}, {2, 2}});
+  CHECK(kept.size() == 6);  // both pieces of models 0 and 2 on segment 2
+  kept = jobs;
+  sixdof_detail::keep_best_models(kept, 10);  // more than there are: all kept
+  CHECK(kept.size() == jobs.size());
 }
 
 TEST_CASE("6-DoF scene: a segment of colours the model lacks is never searched for it") {

@@ -586,6 +586,7 @@ void bind_estimators(nb::module_& m) {
   pose_prop(sp, "T_cam_obj", &SixDofPose::T_cam_obj, "SixDofPose.T_cam_obj");
   PERCH2_RO(sp, SixDofPose, score);
   PERCH2_RO(sp, SixDofPose, found);
+  PERCH2_RO(sp, SixDofPose, depth_agreement);
   sp.def_ro("cost", &SixDofPose::cost, "the final cost at this pose");
   sp.def("__repr__", [](const SixDofPose& p) {
     return "SixDofPose(instance=" + std::to_string(p.instance) + ", model=" + std::to_string(p.model) +
@@ -731,6 +732,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(dts, DetectSettings, max_per_frame);
   PERCH2_RW(dts, DetectSettings, min_score);
   PERCH2_RW(dts, DetectSettings, max_colour_mismatch);
+  PERCH2_RW(dts, DetectSettings, max_models_per_segment);
 
   nb::class_<SixDofSceneResult> ssr(m, "SixDofSceneResult", doc("SixDofSceneResult"));
   PERCH2_RO(ssr, SixDofSceneResult, poses);
@@ -740,6 +742,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(ssr, SixDofSceneResult, plane);
   PERCH2_RO(ssr, SixDofSceneResult, jobs);
   PERCH2_RO(ssr, SixDofSceneResult, screened_out);
+  PERCH2_RO(ssr, SixDofSceneResult, retrieved_out);
   PERCH2_RO(ssr, SixDofSceneResult, candidates);
   PERCH2_RO(ssr, SixDofSceneResult, rounds);
   PERCH2_RO(ssr, SixDofSceneResult, refined);

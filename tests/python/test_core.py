@@ -272,3 +272,19 @@ def test_estimate_scene_objects_and_bad_requests():
     assert r.refined == 0 and r.reverted == 0  # one object: nothing placed before it
     assert r.residual_segments == 0 and est.settings.scene.residual_pass
     assert "segment" in perch2.SceneSettings.__doc__.lower() or perch2.SceneSettings.__doc__
+
+
+def test_detect_settings_and_what_a_detection_reports():
+    v, f = box_mesh(0.06)
+    est = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu")
+    depth, rgb, K = _table_with_box()
+    settings = perch2.DetectSettings()
+    assert settings.max_models_per_segment == 8 and settings.max_colour_mismatch == pytest.approx(0.15)
+    settings.max_models_per_segment = 0  # every model on every segment
+    r = est.detect(depth, rgb, K, settings)
+    assert r.retrieved_out == 0 and r.missing == []
+    for p in r.poses:  # detect()'s score: pose_score x depth_agreement
+        assert 0 <= p.score <= p.depth_agreement <= 1
+    settings.max_models_per_segment = -1
+    with pytest.raises(perch2.InvalidInput, match="max_models_per_segment"):
+        est.detect(depth, rgb, K, settings)

@@ -142,9 +142,10 @@ class SixDofEstimator {
   SixDofSceneResult detect(const RgbdFrame& frame, const DetectSettings& settings = {}) const;
 
  private:
-  /// estimate_scene() with acceptable()'s colour test on both sides (1 = none; detect(): its settings').
+  /// estimate_scene(); for detect() (`detecting` set) with acceptable()'s colour test on both sides and
+  /// the retrieval of the best models per segment.
   SixDofSceneResult explain_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects,
-                                  float detect_colour_mismatch) const;
+                                  const DetectSettings* detecting) const;
 
   sixdof_detail::Shared<Backend> shared_;  ///< models, settings, per-model sizes and colours, renderer, fit
 };
@@ -208,13 +209,13 @@ SixDofResult SixDofEstimator<Backend>::estimate(const RgbdFrame& frame,
 template <class Backend>
 SixDofSceneResult SixDofEstimator<Backend>::estimate_scene(const RgbdFrame& frame,
                                                            const std::vector<SixDofObject>& objects) const {
-  return explain_scene(frame, objects, 1.f);
+  return explain_scene(frame, objects, nullptr);
 }
 
 template <class Backend>
 SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame,
                                                           const std::vector<SixDofObject>& objects,
-                                                          float detect_colour_mismatch) const {
+                                                          const DetectSettings* detecting) const {
   using namespace sixdof_detail;
   const auto t_start = Clock::now();
   validate_scene(shared_.settings, shared_.models, frame, objects);
@@ -222,7 +223,10 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   SixDofSceneResult out;
   SixDofResult& result = out.search;
   SceneState scene = scene_state(shared_.models.size(), objects);
-  scene.detect_colour_mismatch = detect_colour_mismatch;
+  if (detecting) {
+    scene.detect_colour_mismatch = detecting->max_colour_mismatch;
+    scene.models_per_segment = detecting->max_models_per_segment;
+  }
   out.missing = scene.remaining;
 
   // ---- segment: support plane, connected components, size rule
@@ -261,8 +265,11 @@ SixDofSceneResult SixDofEstimator<Backend>::detect(const RgbdFrame& frame,
   std::vector<SixDofObject> catalogue;
   for (std::size_t m = 0; m < shared_.models.size(); ++m)
     catalogue.push_back({int(m), settings.max_per_model});
-  SixDofSceneResult out = explain_scene(frame, catalogue, settings.max_colour_mismatch);
+  SixDofSceneResult out = explain_scene(frame, catalogue, &settings);
   std::vector<SixDofPose>& poses = out.poses;
+  // Ranked across frames and models (AP): what the pose explains, weighed by how much of its visible
+  // surface the readings show (a model put on another object's readings explains them, but not per pixel).
+  for (SixDofPose& p : poses) p.score *= p.depth_agreement;
   poses.erase(std::remove_if(poses.begin(), poses.end(),
                              [&](const SixDofPose& p) { return !(p.score >= settings.min_score); }),
               poses.end());

@@ -117,6 +117,7 @@ struct Job {
   std::vector<std::int32_t> piece_pixels;  ///< estimate_scene, a piece of a segment: its pixels (targets)
   Eigen::Vector4i box_xywh{0, 0, 0, 0};
   std::vector<float> depths;  ///< proposal depths, metres
+  float colour_fraction = 1;  ///< estimate_scene: its readings' fraction of colours the model shows
 };
 
 /// A job's selected hypothesis (label = job + 1) and its final cost; with the local search deferred

@@ -41,6 +41,7 @@ struct SceneState {
   std::vector<int> placed_object;
   std::vector<std::size_t> placed_estimate;  ///< per placed object: its job's rendered-points estimate
   float detect_colour_mismatch = 1.f;        ///< acceptable()'s (detect(): DetectSettings); 1 = no test
+  int models_per_segment = 0;  ///< detect(): DetectSettings::max_models_per_segment; 0 = every model
 };
 
 /// The state before the first pass: every object's count still to place, the maps between objects and
@@ -157,6 +158,9 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
     const std::size_t before = jobs.size();
     screen_colours(sh, frame, scene.labels, jobs);
     out.screened_out += before - jobs.size();
+    const std::size_t screened = jobs.size();
+    if (scene.models_per_segment > 0) keep_best_models(jobs, scene.models_per_segment);
+    out.retrieved_out += screened - jobs.size();
   }
   out.jobs += jobs.size();
   if (jobs.empty()) {

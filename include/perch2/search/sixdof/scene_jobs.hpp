@@ -3,7 +3,8 @@
 // than max_area_faces of its largest), around the segment's box, or, if the segment is too wide or too
 // large for one object (two touching, a distractor on top), around each of its model-sized pieces
 // (segment_pieces: k-means on its readings). Colour screening drops the jobs whose readings show colours
-// the model lacks (screen_colours), before anything is rendered. Each job's GICP targets and J_o's points
+// the model lacks (screen_colours), before anything is rendered; detect() then keeps on each segment only the
+// models whose colours cover it best (keep_best_models). Each job's GICP targets and J_o's points
 // are its segment and the nearby small ones an occluder may have cut from it (group_segments,
 // group_clouds), or its piece's own readings (with_pieces).
 #pragma once
@@ -13,6 +14,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <map>
 #include <random>
 #include <set>
@@ -123,9 +125,44 @@ void screen_colours(const Shared<Backend>& sh, const RgbdFrame& frame, const Lab
       const std::int32_t p = px[k * px.size() / n];
       hits += matched(job.model, pack_rgb(frame.rgb.data[std::size_t(p)]));
     }
-    if (n > 0 && float(hits) >= ss.min_colour_fraction * float(n)) kept.push_back(std::move(job));
+    job.colour_fraction = n > 0 ? float(hits) / float(n) : 0.f;
+    if (n > 0 && job.colour_fraction >= ss.min_colour_fraction) kept.push_back(std::move(job));
   }
   jobs = std::move(kept);
+}
+
+/// Retrieval (detect(): DetectSettings::max_models_per_segment): on each segment only the models whose
+/// colours best cover its readings (a model's best colour_fraction over its pieces there) keep their jobs:
+/// `n` per object the segment may hold (the fewest pieces any model cut it into), ties kept (a model and its
+/// same-print copy at another size cover the same readings; the search tells them apart). The search then
+/// grows with the segments, not with the catalogue.
+inline void keep_best_models(std::vector<Job>& jobs, int n) {
+  struct Seen {
+    float fraction = -1;
+    int pieces = 0;
+  };
+  std::map<std::int32_t, std::map<int, Seen>> seen;  // segment label -> model -> best fraction, pieces
+  for (const Job& j : jobs) {
+    Seen& m = seen[j.label][j.model];
+    m.fraction = std::max(m.fraction, j.colour_fraction), ++m.pieces;
+  }
+  std::set<std::pair<std::int32_t, int>> kept;  // (segment label, model)
+  for (const auto& [label, models] : seen) {
+    std::vector<float> fractions;
+    int objects = std::numeric_limits<int>::max();
+    for (const auto& [model, m] : models)
+      fractions.push_back(m.fraction), objects = std::min(objects, m.pieces);
+    std::sort(fractions.rbegin(), fractions.rend());
+    const std::size_t budget = std::min(fractions.size(), std::size_t(n) * std::size_t(objects));
+    const float least = fractions[budget - 1];
+    for (const auto& [model, m] : models)
+      if (m.fraction >= least) kept.insert({label, model});
+  }
+  jobs.erase(std::remove_if(jobs.begin(), jobs.end(),
+                            [&](const Job& j) {
+                              return !kept.count({j.label, j.model});
+                            }),
+             jobs.end());
 }
 
 /// The scene jobs of `model` on segment k (SceneSettings): none if the segment is too small or too

@@ -174,8 +174,8 @@ inline std::int32_t explained(const CostBreakdown& c) {
 
 /// Whether a scene candidate, scored against what is still unexplained, may be placed (SceneSettings).
 /// detect_colour_mismatch (detect(): DetectSettings::max_colour_mismatch; 1 = no test): the
-/// largest fraction of its rendered points near readings whose colour matches none of them, and of the
-/// readings near its surface that match none of its colours.
+/// largest fraction of its rendered points near readings whose colour matches none of them (the readings
+/// near its surface that match none of its colours: SceneSettings::max_colour_mismatch, always).
 inline bool acceptable(const SixDofSettings& s, const CostBreakdown& c, float detect_colour_mismatch = 1.f) {
   const SceneSettings& ss = s.scene;
   if (c.rendered_points < s.min_rendered_points) return false;
@@ -185,9 +185,7 @@ inline bool acceptable(const SixDofSettings& s, const CostBreakdown& c, float de
   return inliers >= ss.min_inlier_fraction * float(c.rendered_points) &&
          explained(c) >= ss.min_explained_points &&
          float(c.observed_color_outliers) <= ss.max_colour_mismatch * reached &&
-         (detect_colour_mismatch >= 1.f ||
-          (float(c.rendered_color_outliers) <= detect_colour_mismatch * near &&
-           float(c.observed_color_outliers) <= detect_colour_mismatch * reached));
+         (detect_colour_mismatch >= 1.f || float(c.rendered_color_outliers) <= detect_colour_mismatch * near);
 }
 
 /// Whether a candidate with cost `a` explains the scene better than with `b`: acceptable before not, then

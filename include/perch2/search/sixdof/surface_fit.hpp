@@ -6,6 +6,7 @@
 // the readings: with one face in view it may slide along it). Then each pose's score (pose_score).
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -54,8 +55,36 @@ void fit_poses(const Context<Backend>& ctx, const LabelImage& labels,
   }
 }
 
+/// Per found pose, the fraction of its visible surface (rendered at score_stride; readings of other
+/// labels in front hide it) whose pixel holds a reading within explain_distance_m of the render: near 1
+/// where the readings show the model's shape, low where it covers other depths or none (a model placed
+/// across two objects, over a hole or in front of the background). The cost's tests are 3-D neighbour
+/// tests, tolerant by design; this one is per pixel.
+template <class Backend>
+void depth_agreement(const Context<Backend>& ctx, std::vector<SixDofPose>& poses, SixDofResult& result) {
+  const SixDofSettings& s = ctx.shared.settings;
+  std::vector<Hypothesis> found;
+  std::vector<std::size_t> which;
+  for (std::size_t k = 0; k < poses.size(); ++k)
+    if (poses[k].found)
+      found.push_back({poses[k].model, poses[k].T_cam_obj, std::int32_t(k + 1)}), which.push_back(k);
+  if (found.empty()) return;
+  const CloudBatch r = render(ctx, found, s.score_stride, result);
+  const float tol = s.scene.explain_distance_m;
+  for (std::size_t i = 0; i < which.size(); ++i) {
+    std::size_t visible = 0, agree = 0;
+    for (auto j = std::size_t(r.offsets[i]); j < std::size_t(r.offsets[i + 1]); ++j) {
+      if (r.pixel[j] < 0) continue;
+      ++visible;
+      const float d = ctx.frame.depth_m.data[std::size_t(r.pixel[j])];
+      agree += d > 0 && std::abs(d - r.z[j]) <= tol;
+    }
+    poses[which[i]].depth_agreement = visible > 0 ? float(agree) / float(visible) : 0.f;
+  }
+}
+
 /// The last steps of both entry points: fit (fit_poses, timed in SixDofTimings::fit; if fit.iterations >
-/// 0), then score every pose (pose_score).
+/// 0), then score every pose (pose_score) and measure its depth agreement (depth_agreement).
 template <class Backend>
 void fit_and_score(const Context<Backend>& ctx, const LabelImage& labels,
                    const std::vector<std::size_t>& points_estimate, std::vector<SixDofPose>& poses,
@@ -66,6 +95,7 @@ void fit_and_score(const Context<Backend>& ctx, const LabelImage& labels,
     result.timings.fit += seconds_since(t);
   }
   for (auto& p : poses) p.score = pose_score(p.cost);
+  depth_agreement(ctx, poses, result);
 }
 
 }  // namespace sixdof_detail
