@@ -288,3 +288,17 @@ def test_detect_settings_and_what_a_detection_reports():
     settings.max_models_per_segment = -1
     with pytest.raises(perch2.InvalidInput, match="max_models_per_segment"):
         est.detect(depth, rgb, K, settings)
+
+
+def test_depth_agreement_is_the_share_of_the_visible_surface_the_readings_show():
+    v, f = box_mesh(0.06)
+    est = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu")
+    depth, rgb, K = _table_with_box()
+    mask = np.zeros(depth.shape, bool)
+    mask[50:70, 70:90] = True
+    full = est.estimate(depth, rgb, K, [(0, mask, None)]).poses[0]
+    assert full.found and full.depth_agreement == pytest.approx(1.0)
+    holes = depth.copy()
+    holes[50:70, 70:80] = 0  # half the top face without readings: its render there agrees with nothing
+    half = est.estimate(holes, rgb, K, [(0, mask, None)]).poses[0]
+    assert half.found and half.depth_agreement < 0.9
