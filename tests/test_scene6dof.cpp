@@ -347,13 +347,26 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
 
   // Every screened model searched on every segment finds the same two.
   DetectSettings every_model;
-  every_model.max_models_per_segment = 0;
+  every_model.retrieval_jobs_per_object = 0;
   const SixDofSceneResult all = estimator.detect(t.rgbd, every_model);
   CHECK(all.retrieved_out == 0);
   CHECK(all.jobs >= r.jobs + r.retrieved_out);
   std::set<int> all_models;
   for (const SixDofPose& p : all.poses) all_models.insert(p.model);
   CHECK(all_models == models);
+  // One model per segment, ranked by the coarse search: the cans of other prints rank below the cola on
+  // its segment, the boxes and blocks below the printed box on its own.
+  DetectSettings one_model;
+  one_model.retrieval_jobs_per_object = 1;
+  const SixDofSceneResult one = estimator.detect(t.rgbd, one_model);
+  CHECK(one.retrieved_out > r.retrieved_out);
+  CHECK(one.search.timings.retrieve > 0);
+  std::set<int> one_models;
+  for (const SixDofPose& p : one.poses) {
+    one_models.insert(p.model);
+    CHECK(nearest_gt(t, p.model, p.T_cam_obj).second < 0.01);
+  }
+  CHECK(one_models == models);
 
   // What the rendered-colour test is for: without it a can of another print fits the plain box's faces.
   DetectSettings shape_only;
@@ -369,16 +382,20 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
   bad.min_score = NAN;
   CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("min_score"), InvalidInput);
   bad = DetectSettings{};
-  bad.max_models_per_segment = -1;
-  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("max_models_per_segment"),
+  bad.retrieval_jobs_per_object = -1;
+  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("retrieval_jobs_per_object"),
+                       InvalidInput);
+  bad = DetectSettings{};
+  bad.retrieval_inplane_rotations = 0;
+  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("retrieval_inplane_rotations"),
                        InvalidInput);
 }
 
-TEST_CASE("6-DoF detection retrieval: the best-covering models per segment, ties kept, n per object") {
+TEST_CASE("6-DoF detection retrieval: the best-scored models per segment, ties kept, n per object") {
   using sixdof_detail::Job;
   auto job = [](std::int32_t segment, int model, float fraction) {
     Job j;
-    j.label = segment, j.model = model, j.colour_fraction = fraction;
+    j.label = segment, j.model = model, j.retrieval_score = fraction;
     return j;
   };
   // Segment 1, one piece per model: 0 and 1 tie for the best. Segment 2, two pieces per model (two
@@ -394,6 +411,16 @@ TEST_CASE("6-DoF detection retrieval: the best-covering models per segment, ties
   CHECK(kept.size() == 6);  // both pieces of models 0 and 2 on segment 2
   kept = jobs;
   sixdof_detail::keep_best_models(kept, 10);  // more than there are: all kept
+  CHECK(kept.size() == jobs.size());
+  // By job (the coarse search scores each piece): segment 1 keeps its two tied best, segment 2 its two
+  // best pieces (model 0's 0.8, model 2's 0.7), not the other pieces of those models.
+  kept = jobs;
+  sixdof_detail::keep_best_jobs(kept, 1);
+  std::vector<std::pair<int, float>> by_job;
+  for (const Job& j : kept) by_job.push_back({j.model, j.retrieval_score});
+  CHECK(by_job == std::vector<std::pair<int, float>>{{0, 0.9f}, {1, 0.9f}, {0, 0.8f}, {2, 0.7f}});
+  kept = jobs;
+  sixdof_detail::keep_best_jobs(kept, 10);
   CHECK(kept.size() == jobs.size());
 }
 

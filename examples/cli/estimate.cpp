@@ -80,8 +80,11 @@ struct Tally {
 
   void print(const dataset::BopRunner& runner, const std::string& out, const std::string& overlays,
              bool strict) const {
-    std::printf("perch2 estimate: %d poses for %d requested instances in %d images -> %s\n", poses, requested,
-                estimated, out.c_str());
+    if (requested > 0)
+      std::printf("perch2 estimate: %d poses for %d requested instances in %d images -> %s\n", poses,
+                  requested, estimated, out.c_str());
+    else  // detection (bop24 targets): nothing is requested
+      std::printf("perch2 estimate: %d detections in %d images -> %s\n", poses, estimated, out.c_str());
     if (missing > 0) std::printf("  %d instance(s) not found\n", missing);
     if (unusable > 0)
       std::printf("  %d instance(s) skipped: too few valid depth readings inside the mask\n", unusable);

@@ -703,6 +703,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(st, SixDofTimings, local);
   PERCH2_RO(st, SixDofTimings, segment);
   PERCH2_RO(st, SixDofTimings, explain);
+  PERCH2_RO(st, SixDofTimings, retrieve);
 
   nb::class_<SixDofResult> sr(m, "SixDofResult");
   PERCH2_RO(sr, SixDofResult, poses);
@@ -732,7 +733,9 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(dts, DetectSettings, max_per_frame);
   PERCH2_RW(dts, DetectSettings, min_score);
   PERCH2_RW(dts, DetectSettings, max_colour_mismatch);
-  PERCH2_RW(dts, DetectSettings, max_models_per_segment);
+  PERCH2_RW(dts, DetectSettings, retrieval_jobs_per_object);
+  PERCH2_RW(dts, DetectSettings, retrieval_viewpoints);
+  PERCH2_RW(dts, DetectSettings, retrieval_inplane_rotations);
 
   nb::class_<SixDofSceneResult> ssr(m, "SixDofSceneResult", doc("SixDofSceneResult"));
   PERCH2_RO(ssr, SixDofSceneResult, poses);

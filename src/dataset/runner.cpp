@@ -102,9 +102,9 @@ Stages stages_of(const SixDofTimings& t) {
           {"cost", t.cost},         {"select", t.select},       {"total", t.total}};
 }
 
-/// --masks none: also the segmentation and the scene explanation, before "total".
+/// --masks none: also the segmentation, detection's retrieval and the scene explanation, before "total".
 Stages scene_stages_of(const SixDofTimings& t) {
-  Stages out{{"segment", t.segment}};
+  Stages out{{"segment", t.segment}, {"retrieve", t.retrieve}};
   for (const auto& st : stages_of(t))
     if (st.first != "total") out.push_back(st);
   out.push_back({"explain", t.explain});

@@ -279,14 +279,22 @@ def test_detect_settings_and_what_a_detection_reports():
     est = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu")
     depth, rgb, K = _table_with_box()
     settings = perch2.DetectSettings()
-    assert settings.max_models_per_segment == 8 and settings.max_colour_mismatch == pytest.approx(0.15)
-    settings.max_models_per_segment = 0  # every model on every segment
+    assert settings.retrieval_jobs_per_object == 2 and settings.max_colour_mismatch == pytest.approx(0.15)
+    assert (settings.retrieval_viewpoints, settings.retrieval_inplane_rotations) == (12, 2)
+    found = est.detect(depth, rgb, K, settings)  # one model: nothing to rank, no coarse search
+    assert found.retrieved_out == 0 and found.search.timings.retrieve == 0
+    settings.retrieval_viewpoints = 0  # ranked by colour coverage
+    assert len(est.detect(depth, rgb, K, settings).poses) == len(found.poses)
+    settings.retrieval_jobs_per_object = 0  # every model on every segment
     r = est.detect(depth, rgb, K, settings)
     assert r.retrieved_out == 0 and r.missing == []
     for p in r.poses:  # detect()'s score: pose_score x depth_agreement
         assert 0 <= p.score <= p.depth_agreement <= 1
-    settings.max_models_per_segment = -1
-    with pytest.raises(perch2.InvalidInput, match="max_models_per_segment"):
+    settings.retrieval_jobs_per_object = -1
+    with pytest.raises(perch2.InvalidInput, match="retrieval_jobs_per_object"):
+        est.detect(depth, rgb, K, settings)
+    settings.retrieval_jobs_per_object, settings.retrieval_viewpoints = 2, -1
+    with pytest.raises(perch2.InvalidInput, match="retrieval_viewpoints"):
         est.detect(depth, rgb, K, settings)
 
 

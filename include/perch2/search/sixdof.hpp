@@ -47,8 +47,8 @@
 // public types), context.hpp (what the passes share), validate.hpp, observed.hpp, proposals.hpp,
 // first_pass.hpp, select.hpp (keep, select, score), second_pass.hpp, turn_search.hpp (the local search),
 // surface_fit.hpp, and under them pass.hpp (one render-refine-score pass in chunks); estimate_scene()'s
-// jobs and explanation in scene_jobs.hpp and scene.hpp. search() below strings the passes together for
-// both entry points.
+// jobs and explanation in scene_jobs.hpp and scene.hpp, detect()'s retrieval in retrieval.hpp. search() below
+// strings the passes together for both entry points.
 
 #include <algorithm>
 #include <cmath>
@@ -85,7 +85,7 @@ std::vector<Finalist> search(const Context<Backend>& ctx, const std::vector<Job>
                              bool defer_local) {
   const SixDofSettings& s = ctx.shared.settings;
   const std::size_t K = jobs.size();
-  std::vector<Hypothesis> hyps = propose(ctx, jobs, points_estimate, result);
+  std::vector<Hypothesis> hyps = propose(ctx, jobs, s.proposals, points_estimate, result);
 
   // ---- first pass over every proposal (chunks): render, refine, re-render, cheap cost
   const std::vector<int> first_stride = first_pass_strides(s, jobs, segment_points);
@@ -225,7 +225,10 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   SceneState scene = scene_state(shared_.models.size(), objects);
   if (detecting) {
     scene.detect_colour_mismatch = detecting->max_colour_mismatch;
-    scene.models_per_segment = detecting->max_models_per_segment;
+    scene.retrieval_jobs_per_object = detecting->retrieval_jobs_per_object;
+    scene.retrieval = shared_.settings.proposals;  // its hemisphere and symmetry rule, fewer rotations
+    scene.retrieval.viewpoints = detecting->retrieval_viewpoints;
+    scene.retrieval.inplane_rotations = detecting->retrieval_inplane_rotations;
   }
   out.missing = scene.remaining;
 

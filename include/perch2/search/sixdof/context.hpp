@@ -118,6 +118,7 @@ struct Job {
   Eigen::Vector4i box_xywh{0, 0, 0, 0};
   std::vector<float> depths;  ///< proposal depths, metres
   float colour_fraction = 1;  ///< estimate_scene: its readings' fraction of colours the model shows
+  float retrieval_score = 0;  ///< detect(): how well the model fits its segment, higher first (retrieval.hpp)
 };
 
 /// A job's selected hypothesis (label = job + 1) and its final cost; with the local search deferred

@@ -40,11 +40,13 @@ std::vector<Job> instance_jobs(const Shared<Backend>& sh, const RgbdFrame& frame
   return jobs;
 }
 
-/// Every job's proposals (Hypothesis::label = job + 1), job by job; fills the per-job counts of `result`
-/// and points_estimate (per job: a bound on its rendered points at the finest stride, for the chunk sizes).
+/// Every job's proposals (Hypothesis::label = job + 1; rotations from `proposals`), job by job; fills the
+/// per-job counts of `result` and points_estimate (per job: a bound on its rendered points at the finest
+/// stride, for the chunk sizes).
 template <class Backend>
 std::vector<Hypothesis> propose(const Context<Backend>& ctx, const std::vector<Job>& jobs,
-                                std::vector<std::size_t>& points_estimate, SixDofResult& result) {
+                                const ProposalSettings& proposals, std::vector<std::size_t>& points_estimate,
+                                SixDofResult& result) {
   const SixDofSettings& s = ctx.shared.settings;
   const std::size_t K = jobs.size();
   auto t = Clock::now();
@@ -57,7 +59,7 @@ std::vector<Hypothesis> propose(const Context<Backend>& ctx, const std::vector<J
     if (it == rotations_of.end())
       it = rotations_of
                .emplace(job.model,
-                        rotation_proposals(s.proposals, ctx.shared.models[std::size_t(job.model)].symmetries))
+                        rotation_proposals(proposals, ctx.shared.models[std::size_t(job.model)].symmetries))
                .first;
     const auto poses = pose_proposals(ctx.frame.camera, box_centre_px(job.box_xywh), it->second, job.depths);
     for (const auto& T : poses) hyps.push_back({job.model, T, std::int32_t(k + 1)});

@@ -19,6 +19,7 @@
 #include "perch2/search/sixdof/context.hpp"
 #include "perch2/search/sixdof/first_pass.hpp"
 #include "perch2/search/sixdof/pass.hpp"
+#include "perch2/search/sixdof/retrieval.hpp"
 #include "perch2/search/sixdof/scene_jobs.hpp"
 #include "perch2/search/sixdof/second_pass.hpp"
 #include "perch2/search/sixdof/select.hpp"
@@ -41,7 +42,13 @@ struct SceneState {
   std::vector<int> placed_object;
   std::vector<std::size_t> placed_estimate;  ///< per placed object: its job's rendered-points estimate
   float detect_colour_mismatch = 1.f;        ///< acceptable()'s (detect(): DetectSettings); 1 = no test
-  int models_per_segment = 0;  ///< detect(): DetectSettings::max_models_per_segment; 0 = every model
+  int retrieval_jobs_per_object = 0;         ///< detect(): DetectSettings'; 0 = every job
+  /// detect(): the retrieval's coarse proposals (DetectSettings::retrieval_*); 0 viewpoints = colours rank
+  ProposalSettings retrieval = [] {
+    ProposalSettings p;
+    p.viewpoints = 0;
+    return p;
+  }();
 };
 
 /// The state before the first pass: every object's count still to place, the maps between objects and
@@ -159,35 +166,30 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
     screen_colours(sh, frame, scene.labels, jobs);
     out.screened_out += before - jobs.size();
     const std::size_t screened = jobs.size();
-    if (scene.models_per_segment > 0) keep_best_models(jobs, scene.models_per_segment);
+    if (scene.retrieval_jobs_per_object > 0 && scene.retrieval.viewpoints == 0)
+      keep_best_models(jobs, scene.retrieval_jobs_per_object);
+    out.retrieved_out += screened - jobs.size();
+  }
+  result.timings.proposals += seconds_since(t);
+  if (scene.retrieval.viewpoints > 0 && scene.retrieval_jobs_per_object > 0 && !jobs.empty()) {
+    const std::size_t screened = jobs.size();
+    retrieve(sh, frame, segments, scene.labels, S, scene.retrieval, scene.retrieval_jobs_per_object,
+             scene.detect_colour_mismatch, jobs, result);
     out.retrieved_out += screened - jobs.size();
   }
   out.jobs += jobs.size();
-  if (jobs.empty()) {
-    result.timings.proposals += seconds_since(t);
-    return segment_points;
-  }
+  if (jobs.empty()) return segment_points;
+  t = Clock::now();
   // Each job's GICP targets and J_o's points: its segment and those that may be other parts of the same
   // object (an occluder in front splits it), as one observed cloud per distinct group.
-  const std::vector<std::vector<std::int32_t>> groups = group_segments(sh, segments, jobs);
-  result.timings.proposals += seconds_since(t);
-  t = Clock::now();
-  const CloudBatch observed = group_clouds(s.observed, frame, scene.labels, groups, S);
-  std::vector<std::size_t> group_points;
-  for (std::size_t g = 0; g < groups.size(); ++g) group_points.push_back(observed.cloud_size(g));
+  const JobTargets<Backend> job_targets(sh, frame, segments, scene.labels, S, jobs);
+  const std::vector<std::vector<std::int32_t>>& groups = job_targets.groups;
+  const std::vector<std::size_t>& group_points = job_targets.group_points;
+  const std::vector<std::int32_t>& job_cloud = job_targets.job_cloud;
+  const std::vector<std::int32_t>& job_label = job_targets.job_label;
   result.segment_points.insert(result.segment_points.end(), group_points.begin(), group_points.end());
-  const CloudBatch targets = with_pieces(s.observed, frame, observed, jobs);
-  const typename Backend::Registration registration(targets);
-  const auto first_pass_registration = first_pass_targets(sh, frame, targets);
-  const typename Backend::Cost cost(observed);
-  const Occluders occluders{frame.depth_m, scene.labels};
   result.timings.observed += seconds_since(t);
-  std::vector<std::int32_t> job_cloud, job_label, job_target;
-  for (const Job& j : jobs)
-    job_cloud.push_back(j.segment), job_label.push_back(j.label), job_target.push_back(j.target);
-  const Context<Backend> ctx{
-      sh,   frame,     occluders, &registration, or_same(first_pass_registration, registration),
-      cost, job_cloud, job_label, job_target};
+  const Context<Backend> ctx = job_targets.context(sh, frame);
   std::vector<std::size_t> points_estimate;
   const std::vector<Finalist> found =
       search(ctx, jobs, group_points, points_estimate, result, ss.local_search_placed_only);

@@ -4,9 +4,9 @@
 // large for one object (two touching, a distractor on top), around each of its model-sized pieces
 // (segment_pieces: k-means on its readings). Colour screening drops the jobs whose readings show colours
 // the model lacks (screen_colours), before anything is rendered; detect() then keeps on each segment only the
-// models whose colours cover it best (keep_best_models). Each job's GICP targets and J_o's points
-// are its segment and the nearby small ones an occluder may have cut from it (group_segments,
-// group_clouds), or its piece's own readings (with_pieces).
+// models that fit it best (retrieval.hpp). Each job's GICP targets and J_o's points are its segment and
+// the nearby small ones an occluder may have cut from it (group_segments, group_clouds), or its piece's
+// own readings (with_pieces); JobTargets builds them once per set of jobs.
 #pragma once
 
 #include <Eigen/Core>
@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <limits>
 #include <map>
+#include <optional>
 #include <random>
 #include <set>
 #include <string>
@@ -27,6 +28,7 @@
 #include "perch2/search/proposals.hpp"
 #include "perch2/search/segmentation.hpp"
 #include "perch2/search/sixdof/context.hpp"
+#include "perch2/search/sixdof/first_pass.hpp"
 
 namespace perch2 {
 namespace sixdof_detail {
@@ -125,44 +127,10 @@ void screen_colours(const Shared<Backend>& sh, const RgbdFrame& frame, const Lab
       const std::int32_t p = px[k * px.size() / n];
       hits += matched(job.model, pack_rgb(frame.rgb.data[std::size_t(p)]));
     }
-    job.colour_fraction = n > 0 ? float(hits) / float(n) : 0.f;
+    job.colour_fraction = job.retrieval_score = n > 0 ? float(hits) / float(n) : 0.f;
     if (n > 0 && job.colour_fraction >= ss.min_colour_fraction) kept.push_back(std::move(job));
   }
   jobs = std::move(kept);
-}
-
-/// Retrieval (detect(): DetectSettings::max_models_per_segment): on each segment only the models whose
-/// colours best cover its readings (a model's best colour_fraction over its pieces there) keep their jobs:
-/// `n` per object the segment may hold (the fewest pieces any model cut it into), ties kept (a model and its
-/// same-print copy at another size cover the same readings; the search tells them apart). The search then
-/// grows with the segments, not with the catalogue.
-inline void keep_best_models(std::vector<Job>& jobs, int n) {
-  struct Seen {
-    float fraction = -1;
-    int pieces = 0;
-  };
-  std::map<std::int32_t, std::map<int, Seen>> seen;  // segment label -> model -> best fraction, pieces
-  for (const Job& j : jobs) {
-    Seen& m = seen[j.label][j.model];
-    m.fraction = std::max(m.fraction, j.colour_fraction), ++m.pieces;
-  }
-  std::set<std::pair<std::int32_t, int>> kept;  // (segment label, model)
-  for (const auto& [label, models] : seen) {
-    std::vector<float> fractions;
-    int objects = std::numeric_limits<int>::max();
-    for (const auto& [model, m] : models)
-      fractions.push_back(m.fraction), objects = std::min(objects, m.pieces);
-    std::sort(fractions.rbegin(), fractions.rend());
-    const std::size_t budget = std::min(fractions.size(), std::size_t(n) * std::size_t(objects));
-    const float least = fractions[budget - 1];
-    for (const auto& [model, m] : models)
-      if (m.fraction >= least) kept.insert({label, model});
-  }
-  jobs.erase(std::remove_if(jobs.begin(), jobs.end(),
-                            [&](const Job& j) {
-                              return !kept.count({j.label, j.model});
-                            }),
-             jobs.end());
 }
 
 /// The scene jobs of `model` on segment k (SceneSettings): none if the segment is too small or too
@@ -268,5 +236,51 @@ inline CloudBatch group_clouds(const ObservedCloudSettings& o, const RgbdFrame& 
   }
   return out;
 }
+
+/// The observed clouds a set of jobs is searched against, built once for them: groups (group_segments),
+/// one cloud per group (J_o's points; group_points its sizes), GICP's targets (with_pieces), both
+/// registrations, the cost and the occluders (`labels`' segments 1..S hide nothing of their own jobs).
+/// Sets each job's `segment` and `target`.
+template <class Backend>
+struct JobTargets {
+  std::vector<std::vector<std::int32_t>> groups;
+  CloudBatch observed;
+  std::vector<std::size_t> group_points;
+  CloudBatch targets;
+  typename Backend::Registration registration;
+  std::optional<typename Backend::Registration> first_pass_registration;
+  typename Backend::Cost cost;
+  Occluders occluders;
+  std::vector<std::int32_t> job_cloud, job_label, job_target;
+
+  JobTargets(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
+             const LabelImage& labels, std::size_t S, std::vector<Job>& jobs)
+      : groups(group_segments(sh, segments, jobs)),
+        observed(group_clouds(sh.settings.observed, frame, labels, groups, S)),
+        group_points(cloud_sizes(observed)),
+        targets(with_pieces(sh.settings.observed, frame, observed, jobs)),
+        registration(targets),
+        first_pass_registration(first_pass_targets(sh, frame, targets)),
+        cost(observed),
+        occluders{frame.depth_m, labels} {
+    for (const Job& j : jobs)
+      job_cloud.push_back(j.segment), job_label.push_back(j.label), job_target.push_back(j.target);
+  }
+  JobTargets(const JobTargets&) = delete;
+  JobTargets& operator=(const JobTargets&) = delete;
+
+  Context<Backend> context(const Shared<Backend>& sh, const RgbdFrame& frame) const {
+    return {sh,   frame,     occluders, &registration, or_same(first_pass_registration, registration),
+            cost, job_cloud, job_label, job_target};
+  }
+
+ private:
+  static std::vector<std::size_t> cloud_sizes(const CloudBatch& c) {
+    std::vector<std::size_t> n;
+    for (std::size_t g = 0; g < c.num_clouds(); ++g) n.push_back(c.cloud_size(g));
+    return n;
+  }
+};
+
 }  // namespace sixdof_detail
 }  // namespace perch2

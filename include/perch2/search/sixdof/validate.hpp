@@ -96,10 +96,12 @@ inline void validate_scene(const SixDofSettings& s, const std::vector<SixDofMode
 
 inline void validate_detect(const DetectSettings& d) {
   if (d.max_per_model < 1 || d.max_per_frame < 1 || !(d.min_score >= 0 && d.min_score <= 1) ||
-      !(d.max_colour_mismatch >= 0 && d.max_colour_mismatch <= 1) || d.max_models_per_segment < 0)
+      !(d.max_colour_mismatch >= 0 && d.max_colour_mismatch <= 1) || d.retrieval_jobs_per_object < 0 ||
+      d.retrieval_viewpoints < 0 || d.retrieval_inplane_rotations < 1)
     throw InvalidInput("DetectSettings",
-                       "needs max_per_model >= 1, max_per_frame >= 1, max_models_per_segment >= 0, min_score "
-                       "and max_colour_mismatch in [0, 1]");
+                       "needs max_per_model >= 1, max_per_frame >= 1, retrieval_jobs_per_object >= 0, "
+                       "retrieval_viewpoints >= 0, retrieval_inplane_rotations >= 1, min_score and "
+                       "max_colour_mismatch in [0, 1]");
 }
 
 }  // namespace sixdof_detail

@@ -1,0 +1,139 @@
+// detect()'s retrieval: on each segment only the models that fit it best earn the full search, so the
+// search grows with the segments, not with the catalogue. Every job the size and colour screening let
+// through first gets a coarse render-and-compare (coarse_scores): a few rotations (DetectSettings::
+// retrieval_*) at the middle of its depths through the first pass (render, ICP warm-up + GICP, cheap
+// RGB-D cost), scored as the explanation will choose (acceptable first, then the readings explained);
+// keep_best_jobs keeps the best few (model, piece) jobs of each segment. Colours alone (screen_colours'
+// coverage, keep_best_models) rank poorly: a broad palette covers most segments.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <map>
+#include <set>
+#include <utility>
+#include <vector>
+
+#include "perch2/search/sixdof/context.hpp"
+#include "perch2/search/sixdof/first_pass.hpp"
+#include "perch2/search/sixdof/proposals.hpp"
+#include "perch2/search/sixdof/scene_jobs.hpp"
+
+namespace perch2 {
+namespace sixdof_detail {
+
+/// Per segment label, per model: its best Job::retrieval_score over its pieces there, and their number.
+struct SegmentModel {
+  float score = -std::numeric_limits<float>::infinity();
+  int pieces = 0;
+};
+using SegmentModels = std::map<std::int32_t, std::map<int, SegmentModel>>;
+
+inline SegmentModels segment_models(const std::vector<Job>& jobs) {
+  SegmentModels seen;
+  for (const Job& j : jobs) {
+    SegmentModel& m = seen[j.label][j.model];
+    m.score = std::max(m.score, j.retrieval_score), ++m.pieces;
+  }
+  return seen;
+}
+
+/// How many of a segment's models (or jobs) keep their jobs: `n` per object it may hold (the fewest pieces
+/// any model cut it into), at most `of`.
+inline std::size_t kept_of(const std::map<int, SegmentModel>& models, int n, std::size_t of) {
+  int objects = std::numeric_limits<int>::max();
+  for (const auto& [model, m] : models) objects = std::min(objects, m.pieces);
+  return std::min(of, std::size_t(n) * std::size_t(objects));
+}
+
+/// On each segment only the kept_of() models with the best Job::retrieval_score keep their jobs, ties kept
+/// (with colour coverage as the score, a model and its same-print copy at another size cover the same
+/// readings; the search tells them apart).
+inline void keep_best_models(std::vector<Job>& jobs, int n) {
+  std::set<std::pair<std::int32_t, int>> kept;  // (segment label, model)
+  for (const auto& [label, models] : segment_models(jobs)) {
+    std::vector<float> scores;
+    for (const auto& [model, m] : models) scores.push_back(m.score);
+    std::sort(scores.rbegin(), scores.rend());
+    const float least = scores[kept_of(models, n, scores.size()) - 1];
+    for (const auto& [model, m] : models)
+      if (m.score >= least) kept.insert({label, model});
+  }
+  jobs.erase(std::remove_if(jobs.begin(), jobs.end(),
+                            [&](const Job& j) {
+                              return !kept.count({j.label, j.model});
+                            }),
+             jobs.end());
+}
+
+/// On each segment only the kept_of() best-scored jobs (model, piece) are kept, ties kept: a coarse
+/// search scores each piece, and a model's other pieces of a large segment need not be searched.
+inline void keep_best_jobs(std::vector<Job>& jobs, int n) {
+  std::map<std::int32_t, float> least;  // segment label -> the lowest score kept
+  for (const auto& [label, models] : segment_models(jobs)) {
+    std::vector<float> scores;
+    for (const Job& j : jobs)
+      if (j.label == label) scores.push_back(j.retrieval_score);
+    std::sort(scores.rbegin(), scores.rend());
+    least[label] = scores[kept_of(models, n, scores.size()) - 1];
+  }
+  jobs.erase(std::remove_if(jobs.begin(), jobs.end(),
+                            [&](const Job& j) { return j.retrieval_score < least[j.label]; }),
+             jobs.end());
+}
+
+/// Every job's Job::retrieval_score from a coarse search: `coarse`'s rotations at the middle of the job's
+/// depths through the first pass, against the jobs' own targets. The best of its hypotheses that show
+/// enough points (keep_best's rule) as the explanation would pick it: the readings it explains, scaled by
+/// 1e-3 unless acceptable (detect_colour_mismatch); -infinity if none shows enough points.
+template <class Backend>
+void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
+                   const LabelImage& labels, std::size_t S, const ProposalSettings& coarse,
+                   float detect_colour_mismatch, std::vector<Job>& jobs) {
+  const SixDofSettings& s = sh.settings;
+  SixDofResult scratch;  // the coarse search's counts and times are not the search's (timings.retrieve)
+  const JobTargets<Backend> targets(sh, frame, segments, labels, S, jobs);
+  const Context<Backend> ctx = targets.context(sh, frame);
+  std::vector<Job> middle = jobs;
+  for (Job& j : middle) j.depths = {j.depths[j.depths.size() / 2]};
+  std::vector<std::size_t> points_estimate;
+  std::vector<Hypothesis> hyps = propose(ctx, middle, coarse, points_estimate, scratch);
+  const std::vector<int> stride = first_pass_strides(s, jobs, targets.group_points);
+  const std::vector<CostBreakdown> costs = first_pass(ctx, stride, hyps, points_estimate, scratch);
+  for (Job& j : jobs) j.retrieval_score = -std::numeric_limits<float>::infinity();
+  for (std::size_t h = 0; h < hyps.size(); ++h) {
+    const auto k = std::size_t(hyps[h].label - 1);
+    const float ratio = float(s.score_stride) / float(stride[k]);
+    if (costs[h].rendered_points <
+        std::max(3, int(std::lround(float(s.min_rendered_points) * ratio * ratio))))
+      continue;
+    // As the explanation will choose: acceptable first, then by the readings explained.
+    const float explains = float(std::max(explained(costs[h]), 0));
+    const float score = acceptable(s, costs[h], detect_colour_mismatch) ? explains : 1e-3f * explains;
+    jobs[k].retrieval_score = std::max(jobs[k].retrieval_score, score);
+  }
+}
+
+/// detect()'s retrieval: coarse_scores, then keep_best_jobs (`n` per object a segment may hold); nothing
+/// when every segment keeps all its jobs.
+template <class Backend>
+void retrieve(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
+              const LabelImage& labels, std::size_t S, const ProposalSettings& coarse, int n,
+              float detect_colour_mismatch, std::vector<Job>& jobs, SixDofResult& result) {
+  const SegmentModels seen = segment_models(jobs);
+  if (std::all_of(seen.begin(), seen.end(), [&](const auto& s) {
+        std::size_t pieces = 0;
+        for (const auto& [model, m] : s.second) pieces += std::size_t(m.pieces);
+        return kept_of(s.second, n, pieces) == pieces;
+      }))
+    return;
+  const auto t = Clock::now();
+  coarse_scores(sh, frame, segments, labels, S, coarse, detect_colour_mismatch, jobs);
+  keep_best_jobs(jobs, n);
+  result.timings.retrieve += seconds_since(t);
+}
+
+}  // namespace sixdof_detail
+}  // namespace perch2
