@@ -391,6 +391,30 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
                        InvalidInput);
 }
 
+TEST_CASE("6-DoF detection: three copies of a can are all found; its look-alikes are not taken for them") {
+  // The catalogue also holds three look-alikes of every model (synth::make_decoys: another print, the
+  // same print at 0.8x the size, other colours): 32 models, none of which says what is on the table.
+  const Table t =
+      make_table({{kCola, -0.12f, 0.02f, 0.f}, {kCola, 0.f, -0.04f, 1.f}, {kCola, 0.12f, 0.04f, 2.f}});
+  std::vector<synth::ObjectModel> catalogue = t.models;
+  for (auto& d : synth::make_decoys(t.models, int(t.models.size()) + 1)) catalogue.push_back(std::move(d));
+  REQUIRE(catalogue.size() == 4 * t.models.size());
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(catalogue), test_settings());
+  const SixDofSceneResult r = estimator.detect(t.rgbd);
+  INFO("jobs " << r.jobs << " (" << r.screened_out << " screened out, " << r.retrieved_out
+               << " retrieved out), " << r.search.timings.total << " s");
+  std::set<int> found;
+  for (const SixDofPose& p : r.poses) {
+    INFO("model " << p.model << ", score " << p.score);
+    CHECK(p.model == kCola);
+    const auto [object, e] = nearest_gt(t, kCola, p.T_cam_obj);
+    CHECK(e < 0.01);
+    found.insert(object);
+  }
+  CHECK(r.poses.size() == 3);
+  CHECK(found.size() == 3);  // each copy once
+}
+
 TEST_CASE("6-DoF detection retrieval: the best-scored models per segment, ties kept, n per object") {
   using sixdof_detail::Job;
   auto job = [](std::int32_t segment, int model, float fraction) {
