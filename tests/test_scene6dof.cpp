@@ -12,6 +12,7 @@
 #include <map>
 #include <optional>
 #include <set>
+#include <string>
 #include <vector>
 
 #include "perch2/cpu/estimators.hpp"
@@ -281,6 +282,15 @@ TEST_CASE("6-DoF scene: an object split in two by an occluder is found once") {
   REQUIRE(r.poses.size() == 1);  // found once; the second requested instance is missing
   CHECK(r.missing == std::vector<int>{1});
   CHECK(nearest_gt(t, kBox, r.poses[0].T_cam_obj).second < 0.01);
+  // Detection, nothing given: reported once, and no other model on either part.
+  const SixDofSceneResult d = estimator.detect(t.rgbd);
+  std::string reported;  // model:score of each detection
+  for (const SixDofPose& p : d.poses)
+    reported += " " + std::to_string(p.model) + ":" + std::to_string(p.score);
+  INFO("detections" << reported);
+  REQUIRE(d.poses.size() == 1);
+  CHECK(d.poses[0].model == kBox);
+  CHECK(nearest_gt(t, kBox, d.poses[0].T_cam_obj).second < 0.01);
 }
 
 TEST_CASE(
