@@ -401,7 +401,8 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
                        InvalidInput);
 }
 
-TEST_CASE("6-DoF detection: three copies of a can are all found; its look-alikes are not taken for them") {
+TEST_CASE(
+    "6-DoF detection: three copies of a can are all found, and its look-alikes are not taken for them") {
   // The catalogue also holds three look-alikes of every model (synth::make_decoys: another print, the
   // same print at 0.8x the size, other colours): 32 models, none of which says what is on the table.
   const Table t =
