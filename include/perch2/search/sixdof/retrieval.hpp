@@ -71,13 +71,13 @@ inline void keep_best_models(std::vector<Job>& jobs, int n) {
 /// On each segment only the kept_of() best-scored jobs (model, piece) are kept, ties kept: a coarse
 /// search scores each piece, and a model's other pieces of a large segment need not be searched.
 inline void keep_best_jobs(std::vector<Job>& jobs, int n) {
+  std::map<std::int32_t, std::vector<float>> scores;  // segment label -> its jobs' scores
+  for (const Job& j : jobs) scores[j.label].push_back(j.retrieval_score);
   std::map<std::int32_t, float> least;  // segment label -> the lowest score kept
   for (const auto& [label, models] : segment_models(jobs)) {
-    std::vector<float> scores;
-    for (const Job& j : jobs)
-      if (j.label == label) scores.push_back(j.retrieval_score);
-    std::sort(scores.rbegin(), scores.rend());
-    least[label] = scores[kept_of(models, n, scores.size()) - 1];
+    std::vector<float>& s = scores[label];
+    std::sort(s.rbegin(), s.rend());
+    least[label] = s[kept_of(models, n, s.size()) - 1];
   }
   jobs.erase(std::remove_if(jobs.begin(), jobs.end(),
                             [&](const Job& j) { return j.retrieval_score < least[j.label]; }),
@@ -96,8 +96,11 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
   SixDofResult scratch;  // the coarse search's counts and times are not the search's (timings.retrieve)
   const JobTargets<Backend> targets(sh, frame, segments, labels, S, jobs);
   const Context<Backend> ctx = targets.context(sh, frame);
-  std::vector<Job> middle = jobs;
-  for (Job& j : middle) j.depths = {j.depths[j.depths.size() / 2]};
+  std::vector<Job> middle(jobs.size());  // what propose() reads, at the middle depth (no piece pixels)
+  for (std::size_t k = 0; k < jobs.size(); ++k) {
+    middle[k].model = jobs[k].model, middle[k].box_xywh = jobs[k].box_xywh;
+    middle[k].depths = {jobs[k].depths[jobs[k].depths.size() / 2]};
+  }
   std::vector<std::size_t> points_estimate;
   std::vector<Hypothesis> hyps = propose(ctx, middle, coarse, points_estimate, scratch);
   const std::vector<int> stride = first_pass_strides(s, jobs, targets.group_points);
@@ -105,10 +108,7 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
   for (Job& j : jobs) j.retrieval_score = -std::numeric_limits<float>::infinity();
   for (std::size_t h = 0; h < hyps.size(); ++h) {
     const auto k = std::size_t(hyps[h].label - 1);
-    const float ratio = float(s.score_stride) / float(stride[k]);
-    if (costs[h].rendered_points <
-        std::max(3, int(std::lround(float(s.min_rendered_points) * ratio * ratio))))
-      continue;
+    if (costs[h].rendered_points < min_points_at(s, stride[k])) continue;
     // As the explanation will choose: acceptable first, then by the readings explained.
     const float explains = float(std::max(explained(costs[h]), 0));
     const float score = acceptable(s, costs[h], detect_colour_mismatch) ? explains : 1e-3f * explains;

@@ -60,6 +60,12 @@ std::vector<Hypothesis> distinct_poses(const Shared<Backend>& sh, const std::vec
   return out;
 }
 
+/// min_rendered_points (counted at score_stride) scaled to a render at `stride`, at least 3.
+inline int min_points_at(const SixDofSettings& s, int stride) {
+  const float ratio = float(s.score_stride) / float(stride);
+  return std::max(3, int(std::lround(float(s.min_rendered_points) * ratio * ratio)));
+}
+
 /// Keep: the best keep_per_instance distinct hypotheses of each instance by cost (all if 0), in instance
 /// then cost order. A hypothesis showing fewer than min_rendered_points (scaled to the first pass' stride)
 /// ranks after every one that shows enough.
@@ -69,10 +75,7 @@ std::vector<Hypothesis> keep_best(const Shared<Backend>& sh, const std::vector<H
                                   std::size_t K) {
   const SixDofSettings& s = sh.settings;
   std::vector<int> min_points(K);
-  for (std::size_t k = 0; k < K; ++k) {
-    const float ratio = float(s.score_stride) / float(stride[k]);
-    min_points[k] = std::max(3, int(std::lround(float(s.min_rendered_points) * ratio * ratio)));
-  }
+  for (std::size_t k = 0; k < K; ++k) min_points[k] = min_points_at(s, stride[k]);
   std::vector<std::size_t> order(hyps.size());
   for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
   auto rank = [&](std::size_t i) {  // (shows too few points, cost): showing enough ranks first
