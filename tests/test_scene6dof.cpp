@@ -323,6 +323,30 @@ TEST_CASE(
   }
 }
 
+TEST_CASE("6-DoF detection: a table of unmodelled objects gives no detection above the default threshold") {
+  // Boxes of sizes and colours of no model (a slab, a cube, a bar) against the whole built-in catalogue.
+  const Table t = make_table({}, {{{0.12f, 0.10f, 0.02f}, -0.15f, 0.05f, Rgb8{200, 190, 60}},
+                                  {{0.09f, 0.09f, 0.09f}, 0.f, 0.1f, Rgb8{120, 50, 160}},
+                                  {{0.25f, 0.03f, 0.03f}, 0.15f, -0.05f, Rgb8{40, 160, 150}}});
+  const SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(t.models), test_settings());
+  DetectSettings everything;  // no threshold, no support-plane test
+  everything.min_score = 0.f;
+  everything.max_below_plane_m = INFINITY;
+  const SixDofSceneResult all = estimator.detect(t.rgbd, everything);
+  std::string reported;  // model:score of each detection
+  for (const SixDofPose& p : all.poses)
+    reported += " " + std::to_string(p.model) + ":" + std::to_string(p.score);
+  INFO("segments " << all.segments.size() << ", jobs " << all.jobs << ", detections" << reported);
+  CHECK(all.segments.size() >= 3);
+  const SixDofSceneResult d = estimator.detect(t.rgbd);
+  CHECK(d.poses.empty());
+  // What is left of them: fits scored below the threshold, or a printed box fitted by its top face onto
+  // the slab, standing inside the table.
+  const auto low = std::count_if(all.poses.begin(), all.poses.end(),
+                                 [](const SixDofPose& p) { return p.score < DetectSettings{}.min_score; });
+  CHECK(std::size_t(low) + d.below_plane == all.poses.size());
+}
+
 TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once each, no other is reported") {
   // The whole catalogue (every built-in model: same-shape cans of other prints, boxes, blocks) against a
   // frame of two of them and a plain box the printed box's size: nothing says which models are there.
@@ -377,6 +401,14 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
     CHECK(nearest_gt(t, p.model, p.T_cam_obj).second < 0.01);
   }
   CHECK(one_models == models);
+  // Without the coarse search's depth the kept jobs search up to max_depths depths: more proposals.
+  DetectSettings unseeded = one_model;
+  unseeded.seed_depth = false;
+  const SixDofSceneResult all_depths = estimator.detect(t.rgbd, unseeded);
+  CHECK(all_depths.search.hypotheses_total > one.search.hypotheses_total);
+  std::set<int> all_depths_models;
+  for (const SixDofPose& p : all_depths.poses) all_depths_models.insert(p.model);
+  CHECK(all_depths_models == models);
 
   // What the rendered-colour test is for: without it a can of another print fits the plain box's faces.
   DetectSettings shape_only;

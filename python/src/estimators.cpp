@@ -736,12 +736,16 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(dts, DetectSettings, retrieval_jobs_per_object);
   PERCH2_RW(dts, DetectSettings, retrieval_viewpoints);
   PERCH2_RW(dts, DetectSettings, retrieval_inplane_rotations);
+  PERCH2_RW(dts, DetectSettings, seed_depth);
+  PERCH2_RW(dts, DetectSettings, half_evidence_readings);
+  PERCH2_RW(dts, DetectSettings, max_below_plane_m);
 
   nb::class_<SixDofSceneResult> ssr(m, "SixDofSceneResult", doc("SixDofSceneResult"));
   PERCH2_RO(ssr, SixDofSceneResult, poses);
   PERCH2_RO(ssr, SixDofSceneResult, missing);
   PERCH2_RO(ssr, SixDofSceneResult, segments);
   PERCH2_RO(ssr, SixDofSceneResult, segment_points);
+  PERCH2_RO(ssr, SixDofSceneResult, below_plane);
   PERCH2_RO(ssr, SixDofSceneResult, plane);
   PERCH2_RO(ssr, SixDofSceneResult, jobs);
   PERCH2_RO(ssr, SixDofSceneResult, screened_out);

@@ -134,7 +134,6 @@ struct BopRunner::Impl {
     if (detection) {  // bop24 targets: every model, as many as placed (RunOptions::detect's caps)
       TabletopDetectSettings d;
       d.max_per_model = options.detect.max_per_model, d.max_per_frame = options.detect.max_per_frame;
-      d.min_score = options.detect.min_score;
       out.rows = detect_bop_image(e, image, obj_ids, d, &r);
     } else {
       out.rows = estimate_bop_image(e, image, targets, model_of, &r);

@@ -279,7 +279,8 @@ def test_detect_settings_and_what_a_detection_reports():
     est = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu")
     depth, rgb, K = _table_with_box()
     settings = perch2.DetectSettings()
-    assert settings.retrieval_jobs_per_object == 2 and settings.max_colour_mismatch == pytest.approx(0.15)
+    assert settings.retrieval_jobs_per_object == 3 and settings.seed_depth
+    assert settings.max_colour_mismatch == pytest.approx(0.15)
     assert (settings.retrieval_viewpoints, settings.retrieval_inplane_rotations) == (12, 2)
     found = est.detect(depth, rgb, K, settings)  # one model: nothing to rank, no coarse search
     assert found.retrieved_out == 0 and found.search.timings.retrieve == 0
@@ -288,7 +289,7 @@ def test_detect_settings_and_what_a_detection_reports():
     settings.retrieval_jobs_per_object = 0  # every model on every segment
     r = est.detect(depth, rgb, K, settings)
     assert r.retrieved_out == 0 and r.missing == []
-    for p in r.poses:  # detect()'s score: pose_score x depth_agreement
+    for p in r.poses:  # detect()'s score: pose_score x depth_agreement x colour and evidence factors
         assert 0 <= p.score <= p.depth_agreement <= 1
     settings.retrieval_jobs_per_object = -1
     with pytest.raises(perch2.InvalidInput, match="retrieval_jobs_per_object"):

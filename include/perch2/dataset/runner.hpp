@@ -67,8 +67,8 @@ struct RunOptions {
   std::string masks = "gt";
   BoxKind box = BoxKind::Full;  ///< 6-DoF with "gt" masks: scene_gt_info's amodal bbox_obj, or bbox_visib
   SixDofSettings sixdof;
-  /// Detection targets (bop24): what detect() may report (6-DoF with masks "none"; 3-DoF: its caps and
-  /// min_score, the colour limit is the 6-DoF search's).
+  /// Detection targets (bop24): what detect() may report (6-DoF with masks "none"; 3-DoF: its caps only,
+  /// its score has another scale and the colour limit is the 6-DoF search's).
   DetectSettings detect;
   /// 6-DoF: an instance with fewer valid depth readings inside its mask (on the observed grid, once later
   /// masks have taken their pixels) is skipped and counted in ImageResult::unusable.

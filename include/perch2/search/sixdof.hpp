@@ -226,6 +226,7 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   if (detecting) {
     scene.detect_colour_mismatch = detecting->max_colour_mismatch;
     scene.retrieval_jobs_per_object = detecting->retrieval_jobs_per_object;
+    scene.retrieval_seed_depth = detecting->seed_depth;
     scene.retrieval = shared_.settings.proposals;  // its hemisphere and symmetry rule, fewer rotations
     scene.retrieval.viewpoints = detecting->retrieval_viewpoints;
     scene.retrieval.inplane_rotations = detecting->retrieval_inplane_rotations;
@@ -270,12 +271,23 @@ SixDofSceneResult SixDofEstimator<Backend>::detect(const RgbdFrame& frame,
     catalogue.push_back({int(m), settings.max_per_model});
   SixDofSceneResult out = explain_scene(frame, catalogue, &settings);
   std::vector<SixDofPose>& poses = out.poses;
-  // Ranked across frames and models (AP): what the pose explains, weighed by how much of its visible
-  // surface the readings show (a model put on another object's readings explains them, but not per pixel).
-  for (SixDofPose& p : poses) p.score *= p.depth_agreement;
+  // Ranked across frames and models (AP), and thresholded: a robot acts on what it reports.
+  for (SixDofPose& p : poses)
+    p.score = sixdof_detail::detection_score(p.cost, p.depth_agreement, settings.half_evidence_readings);
   poses.erase(std::remove_if(poses.begin(), poses.end(),
                              [&](const SixDofPose& p) { return !(p.score >= settings.min_score); }),
               poses.end());
+  if (out.plane) {  // nothing rests inside the table
+    const std::size_t before = poses.size();
+    poses.erase(std::remove_if(poses.begin(), poses.end(),
+                               [&](const SixDofPose& p) {
+                                 return sixdof_detail::height_above(
+                                            *out.plane, shared_.models[std::size_t(p.model)].mesh,
+                                            p.T_cam_obj) < -settings.max_below_plane_m;
+                               }),
+                poses.end());
+    out.below_plane = before - poses.size();
+  }
   std::stable_sort(poses.begin(), poses.end(),
                    [](const SixDofPose& a, const SixDofPose& b) { return a.score > b.score; });
   if (poses.size() > std::size_t(settings.max_per_frame)) poses.resize(std::size_t(settings.max_per_frame));

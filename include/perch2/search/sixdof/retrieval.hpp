@@ -112,7 +112,8 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
     // As the explanation will choose: acceptable first, then by the readings explained.
     const float explains = float(std::max(explained(costs[h]), 0));
     const float score = acceptable(s, costs[h], detect_colour_mismatch) ? explains : 1e-3f * explains;
-    jobs[k].retrieval_score = std::max(jobs[k].retrieval_score, score);
+    if (score > jobs[k].retrieval_score)
+      jobs[k].retrieval_score = score, jobs[k].retrieval_depth_m = hyps[h].T_cam_obj.translation().z();
   }
 }
 
@@ -121,7 +122,7 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
 template <class Backend>
 void retrieve(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
               const LabelImage& labels, std::size_t S, const ProposalSettings& coarse, int n,
-              float detect_colour_mismatch, std::vector<Job>& jobs, SixDofResult& result) {
+              float detect_colour_mismatch, bool seed_depth, std::vector<Job>& jobs, SixDofResult& result) {
   const SegmentModels seen = segment_models(jobs);
   if (std::all_of(seen.begin(), seen.end(), [&](const auto& s) {
         std::size_t pieces = 0;
@@ -132,6 +133,9 @@ void retrieve(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegm
   const auto t = Clock::now();
   coarse_scores(sh, frame, segments, labels, S, coarse, detect_colour_mismatch, jobs);
   keep_best_jobs(jobs, n);
+  if (seed_depth)  // the full search proposes at the depth GICP found
+    for (Job& j : jobs)
+      if (std::isfinite(j.retrieval_score)) j.depths = {j.retrieval_depth_m};
   result.timings.retrieve += seconds_since(t);
 }
 

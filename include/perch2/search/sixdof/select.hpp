@@ -11,12 +11,14 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <map>
 #include <tuple>
 #include <utility>
 #include <vector>
 
 #include "perch2/search/sixdof/context.hpp"
+#include "perch2/search/table_plane.hpp"
 
 namespace perch2 {
 namespace sixdof_detail {
@@ -173,6 +175,26 @@ inline float pose_score(const CostBreakdown& b) {
 /// The observed readings a hypothesis explains (in its volume, not unexplained).
 inline std::int32_t explained(const CostBreakdown& c) {
   return c.observed_in_volume - c.observed_unexplained();
+}
+
+/// detect()'s score, in [0, 1]: pose_score weighed by how much of its visible surface the readings show
+/// (`depth_agreement`: a model put on another object's readings explains them, but not pixel by pixel), by
+/// the share of the readings near its surface whose colours it shows, and by its evidence, n / (n +
+/// half_evidence) for the n readings it explains (a small fragment of clutter fits many models).
+inline float detection_score(const CostBreakdown& c, float depth_agreement, float half_evidence) {
+  const float reached = float(c.observed_in_volume - c.observed_depth_outliers);
+  const float colour = reached > 0 ? 1.f - float(c.observed_color_outliers) / reached : 0.f;
+  const float n = float(std::max(explained(c), 0));
+  const float evidence = n > 0 ? n / (n + half_evidence) : 0.f;
+  return std::clamp(pose_score(c) * depth_agreement * colour * evidence, 0.f, 1.f);
+}
+
+/// Signed height of the lowest vertex of `mesh` at T_cam_obj above `plane`, metres (< 0: below it).
+inline float height_above(const TablePlane& plane, const Mesh& mesh, const Pose& T_cam_obj) {
+  float lowest = std::numeric_limits<float>::infinity();
+  for (const Eigen::Vector3f& v : mesh.vertices)
+    lowest = std::min(lowest, plane.normal_cam.dot(T_cam_obj * v) + plane.offset_m);
+  return lowest;
 }
 
 /// Whether a scene candidate, scored against what is still unexplained, may be placed (SceneSettings).
