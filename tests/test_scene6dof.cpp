@@ -401,6 +401,15 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
     CHECK(nearest_gt(t, p.model, p.T_cam_obj).second < 0.01);
   }
   CHECK(one_models == models);
+  // Jobs whose coarse best may not be placed (the boxes on the plain box) get no full search by default;
+  // searching them too finds the same two.
+  DetectSettings unacceptable_too;
+  unacceptable_too.retrieval_acceptable_only = false;
+  const SixDofSceneResult more = estimator.detect(t.rgbd, unacceptable_too);
+  CHECK(more.jobs > r.jobs);
+  std::set<int> more_models;
+  for (const SixDofPose& p : more.poses) more_models.insert(p.model);
+  CHECK(more_models == models);
   // Without the coarse search's depth the kept jobs search up to max_depths depths: more proposals.
   DetectSettings unseeded = one_model;
   unseeded.seed_depth = false;

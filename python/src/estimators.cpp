@@ -737,6 +737,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(dts, DetectSettings, retrieval_viewpoints);
   PERCH2_RW(dts, DetectSettings, retrieval_inplane_rotations);
   PERCH2_RW(dts, DetectSettings, seed_depth);
+  PERCH2_RW(dts, DetectSettings, retrieval_acceptable_only);
   PERCH2_RW(dts, DetectSettings, half_evidence_readings);
   PERCH2_RW(dts, DetectSettings, max_below_plane_m);
 

@@ -279,7 +279,7 @@ def test_detect_settings_and_what_a_detection_reports():
     est = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu")
     depth, rgb, K = _table_with_box()
     settings = perch2.DetectSettings()
-    assert settings.retrieval_jobs_per_object == 3 and settings.seed_depth
+    assert settings.retrieval_jobs_per_object == 3 and settings.seed_depth and settings.retrieval_acceptable_only
     assert settings.max_colour_mismatch == pytest.approx(0.15)
     assert (settings.retrieval_viewpoints, settings.retrieval_inplane_rotations) == (12, 2)
     found = est.detect(depth, rgb, K, settings)  # one model: nothing to rank, no coarse search

@@ -227,6 +227,7 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
     scene.detect_colour_mismatch = detecting->max_colour_mismatch;
     scene.retrieval_jobs_per_object = detecting->retrieval_jobs_per_object;
     scene.retrieval_seed_depth = detecting->seed_depth;
+    scene.retrieval_acceptable_only = detecting->retrieval_acceptable_only;
     scene.retrieval = shared_.settings.proposals;  // its hemisphere and symmetry rule, fewer rotations
     scene.retrieval.viewpoints = detecting->retrieval_viewpoints;
     scene.retrieval.inplane_rotations = detecting->retrieval_inplane_rotations;

@@ -119,7 +119,8 @@ struct Job {
   std::vector<float> depths;  ///< proposal depths, metres
   float colour_fraction = 1;  ///< estimate_scene: its readings' fraction of colours the model shows
   float retrieval_score = 0;  ///< detect(): how well the model fits its segment, higher first (retrieval.hpp)
-  float retrieval_depth_m = 0;  ///< detect(): planar depth of the coarse search's best pose, metres
+  float retrieval_depth_m = 0;       ///< detect(): planar depth of the coarse search's best pose, metres
+  bool retrieval_acceptable = true;  ///< detect(): whether that pose may be placed (acceptable())
 };
 
 /// A job's selected hypothesis (label = job + 1) and its final cost; with the local search deferred

@@ -105,7 +105,8 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
   std::vector<Hypothesis> hyps = propose(ctx, middle, coarse, points_estimate, scratch);
   const std::vector<int> stride = first_pass_strides(s, jobs, targets.group_points);
   const std::vector<CostBreakdown> costs = first_pass(ctx, stride, hyps, points_estimate, scratch);
-  for (Job& j : jobs) j.retrieval_score = -std::numeric_limits<float>::infinity();
+  for (Job& j : jobs)
+    j.retrieval_score = -std::numeric_limits<float>::infinity(), j.retrieval_acceptable = false;
   for (std::size_t h = 0; h < hyps.size(); ++h) {
     const auto k = std::size_t(hyps[h].label - 1);
     if (costs[h].rendered_points < min_points_at(s, stride[k])) continue;
@@ -113,16 +114,19 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
     const float explains = float(std::max(explained(costs[h]), 0));
     const float score = acceptable(s, costs[h], detect_colour_mismatch) ? explains : 1e-3f * explains;
     if (score > jobs[k].retrieval_score)
-      jobs[k].retrieval_score = score, jobs[k].retrieval_depth_m = hyps[h].T_cam_obj.translation().z();
+      jobs[k].retrieval_score = score, jobs[k].retrieval_depth_m = hyps[h].T_cam_obj.translation().z(),
+      jobs[k].retrieval_acceptable = acceptable(s, costs[h], detect_colour_mismatch);
   }
 }
 
-/// detect()'s retrieval: coarse_scores, then keep_best_jobs (`n` per object a segment may hold); nothing
-/// when every segment keeps all its jobs.
+/// detect()'s retrieval: coarse_scores, then (acceptable_only) no job whose coarse best is not acceptable,
+/// then keep_best_jobs (`n` per object a segment may hold); nothing when every segment keeps all its jobs.
+/// seed_depth: the kept jobs propose at their coarse best's depth.
 template <class Backend>
 void retrieve(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
               const LabelImage& labels, std::size_t S, const ProposalSettings& coarse, int n,
-              float detect_colour_mismatch, bool seed_depth, std::vector<Job>& jobs, SixDofResult& result) {
+              float detect_colour_mismatch, bool acceptable_only, bool seed_depth, std::vector<Job>& jobs,
+              SixDofResult& result) {
   const SegmentModels seen = segment_models(jobs);
   if (std::all_of(seen.begin(), seen.end(), [&](const auto& s) {
         std::size_t pieces = 0;
@@ -132,6 +136,9 @@ void retrieve(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegm
     return;
   const auto t = Clock::now();
   coarse_scores(sh, frame, segments, labels, S, coarse, detect_colour_mismatch, jobs);
+  if (acceptable_only)
+    jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [](const Job& j) { return !j.retrieval_acceptable; }),
+               jobs.end());
   keep_best_jobs(jobs, n);
   if (seed_depth)  // the full search proposes at the depth GICP found
     for (Job& j : jobs)

@@ -44,6 +44,7 @@ struct SceneState {
   float detect_colour_mismatch = 1.f;        ///< acceptable()'s (detect(): DetectSettings); 1 = no test
   int retrieval_jobs_per_object = 0;         ///< detect(): DetectSettings'; 0 = every job
   bool retrieval_seed_depth = false;         ///< detect(): DetectSettings::seed_depth
+  bool retrieval_acceptable_only = false;    ///< detect(): DetectSettings::retrieval_acceptable_only
   /// detect(): the retrieval's coarse proposals (DetectSettings::retrieval_*); 0 viewpoints = colours rank
   ProposalSettings retrieval = [] {
     ProposalSettings p;
@@ -175,7 +176,8 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
   if (scene.retrieval.viewpoints > 0 && scene.retrieval_jobs_per_object > 0 && !jobs.empty()) {
     const std::size_t screened = jobs.size();
     retrieve(sh, frame, segments, scene.labels, S, scene.retrieval, scene.retrieval_jobs_per_object,
-             scene.detect_colour_mismatch, scene.retrieval_seed_depth, jobs, result);
+             scene.detect_colour_mismatch, scene.retrieval_acceptable_only, scene.retrieval_seed_depth, jobs,
+             result);
     out.retrieved_out += screened - jobs.size();
   }
   out.jobs += jobs.size();
