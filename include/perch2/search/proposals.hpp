@@ -190,6 +190,28 @@ inline std::vector<Eigen::Matrix3f> rotation_proposals(const ProposalSettings& s
   return kept;
 }
 
+/// proposal_depths() from a mask's valid depth readings, ascending (not empty), metres.
+inline std::vector<float> proposal_depths_sorted(const std::vector<float>& z, const Mesh& mesh,
+                                                 const ProposalSettings& s) {
+  auto quantile = [&](float q) { return z[std::size_t(std::lround(q * float(z.size() - 1)))]; };
+  const float z_near = quantile(s.depth_quantile_near), z_far = quantile(s.depth_quantile_far);
+  const Eigen::Vector3f size = mesh.bounds().sizes();
+  float sides[3] = {size.x(), size.y(), size.z()};
+  std::sort(sides, sides + 3);
+  float radius = 0;
+  for (const auto& p : mesh.vertices) radius = std::max(radius, p.norm());
+  const float hi = std::max(z_near, std::min(z_far + 0.5f * sides[1], z_near + radius));
+  const float span = hi - z_near;
+  int n = int(std::floor(span / s.depth_step_m + 1e-4f)) + 1;
+  n = std::min(n, s.max_depths);
+  std::vector<float> out;
+  // Evenly over the range, centred when the step does not divide it.
+  const float step = n > 1 ? std::min(s.depth_step_m, span / float(n - 1)) : 0.f;
+  const float start = z_near + 0.5f * (span - step * float(n - 1));
+  for (int i = 0; i < n; ++i) out.push_back(start + step * float(i));
+  return out;
+}
+
 /// Depths (planar z, metres) of an object's centre seen in `mask` (non-zero = inside): from the robust
 /// nearest observed depth z_near to the robust farthest z_far plus half the model's thickness, every
 /// depth_step_m (a wider range is sampled with max_depths evenly spaced values).
@@ -215,23 +237,7 @@ inline std::vector<float> proposal_depths(const DepthImage& depth_m, const Image
   if (!any) throw InvalidInput(who, "is empty (no pixel inside)");
   if (z.empty()) throw InvalidInput(who, "has no valid depth reading inside it");
   std::sort(z.begin(), z.end());
-  auto quantile = [&](float q) { return z[std::size_t(std::lround(q * float(z.size() - 1)))]; };
-  const float z_near = quantile(s.depth_quantile_near), z_far = quantile(s.depth_quantile_far);
-  const Eigen::Vector3f size = mesh.bounds().sizes();
-  float sides[3] = {size.x(), size.y(), size.z()};
-  std::sort(sides, sides + 3);
-  float radius = 0;
-  for (const auto& p : mesh.vertices) radius = std::max(radius, p.norm());
-  const float hi = std::max(z_near, std::min(z_far + 0.5f * sides[1], z_near + radius));
-  const float span = hi - z_near;
-  int n = int(std::floor(span / s.depth_step_m + 1e-4f)) + 1;
-  n = std::min(n, s.max_depths);
-  std::vector<float> out;
-  // Evenly over the range, centred when the step does not divide it.
-  const float step = n > 1 ? std::min(s.depth_step_m, span / float(n - 1)) : 0.f;
-  const float start = z_near + 0.5f * (span - step * float(n - 1));
-  for (int i = 0; i < n; ++i) out.push_back(start + step * float(i));
-  return out;
+  return proposal_depths_sorted(z, mesh, s);
 }
 
 /// The pixel centre of a box (x, y, w, h) as BOP writes it (w = x_max - x_min), pixels.

@@ -157,11 +157,12 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
     for (std::size_t k = 0; k < S; ++k) segment_points.push_back(grid.cloud_size(k));
   }
   std::vector<Job> jobs;
+  PieceCache pieces;
   for (std::size_t i = 0; i < scene.remaining.size(); ++i) {
     if (scene.remaining[i] <= 0) continue;
     for (std::size_t k = 0; k < S; ++k)
       if (segment_points[k] >= std::size_t(ss.min_segment_points))
-        add_scene_jobs(sh, frame, segments, int(k), scene.model_of_object[i], jobs);
+        add_scene_jobs(sh, frame, segments, int(k), scene.model_of_object[i], pieces, jobs);
   }
   if (ss.min_colour_fraction > 0 && s.cost.use_color) {
     const std::size_t before = jobs.size();

@@ -34,9 +34,10 @@ namespace perch2 {
 namespace sixdof_detail {
 
 /// Segment `seg`'s pixels split into `pieces` parts by k-means on their camera-frame points (k-means++
-/// seeding with a fixed seed, so results are deterministic); one mask (full resolution) per part.
-inline std::vector<Image<std::uint8_t>> segment_pieces(const RgbdFrame& frame, const LabelImage& labels,
-                                                       const FrameSegment& seg, int pieces) {
+/// seeding with a fixed seed, so results are deterministic); each part's pixels (full-resolution indices,
+/// ascending; a part may be empty).
+inline std::vector<std::vector<std::int32_t>> segment_pieces(const RgbdFrame& frame, const LabelImage& labels,
+                                                             const FrameSegment& seg, int pieces) {
   const int w = frame.camera.width;
   std::vector<std::size_t> pix;
   std::vector<Eigen::Vector3f> pts;
@@ -48,10 +49,9 @@ inline std::vector<Image<std::uint8_t>> segment_pieces(const RgbdFrame& frame, c
       pix.push_back(i);
       pts.push_back(segmentation_detail::point_at(frame.camera, u, v, frame.depth_m.data[i]));
     }
-  std::vector<Image<std::uint8_t>> out;
+  std::vector<std::vector<std::int32_t>> out;
   if (pieces <= 1 || pts.size() < std::size_t(pieces)) {
-    out.emplace_back(labels.width, labels.height, 0);
-    for (const std::size_t i : pix) out.back().data[i] = 1;
+    out.emplace_back(pix.begin(), pix.end());
     return out;
   }
   std::mt19937 rng(7);
@@ -80,8 +80,42 @@ inline std::vector<Image<std::uint8_t>> segment_pieces(const RgbdFrame& frame, c
     for (std::size_t c = 0; c < centre.size(); ++c)
       if (n[c] > 0) centre[c] = sum[c] / float(n[c]);
   }
-  out.assign(centre.size(), Image<std::uint8_t>(labels.width, labels.height, 0));
-  for (std::size_t i = 0; i < pix.size(); ++i) out[std::size_t(owner[i])].data[pix[i]] = 1;
+  out.resize(centre.size());
+  for (std::size_t i = 0; i < pix.size(); ++i) out[std::size_t(owner[i])].push_back(std::int32_t(pix[i]));
+  return out;
+}
+
+/// A segment piece as the jobs on it need it: its pixels, box and valid depths.
+struct SegmentPiece {
+  std::vector<std::int32_t> pixels;  ///< full-resolution indices
+  Eigen::Vector4i box_xywh{0, 0, 0, 0};
+  std::vector<float> depths_m;  ///< its valid readings, ascending
+};
+
+/// The pieces of segment k cut in n parts, per (k, n): every model that cuts a segment alike shares them.
+using PieceCache = std::map<std::pair<int, int>, std::vector<SegmentPiece>>;
+
+/// Segment `seg` cut in `pieces` parts (segment_pieces), each with its box and sorted depths; empty parts
+/// are left out.
+inline std::vector<SegmentPiece> cut_segment(const RgbdFrame& frame, const LabelImage& labels,
+                                             const FrameSegment& seg, int pieces) {
+  std::vector<SegmentPiece> out;
+  const int w = frame.camera.width;
+  for (std::vector<std::int32_t>& pixels : segment_pieces(frame, labels, seg, pieces)) {
+    if (pixels.empty()) continue;
+    SegmentPiece p;
+    int x0 = w, y0 = frame.camera.height, x1 = -1, y1 = -1;
+    for (const std::int32_t i : pixels) {
+      const int u = i % w, v = i / w;
+      x0 = std::min(x0, u), x1 = std::max(x1, u), y0 = std::min(y0, v), y1 = std::max(y1, v);
+      const float z = frame.depth_m.data[std::size_t(i)];
+      if (z > 0 && std::isfinite(z)) p.depths_m.push_back(z);
+    }
+    std::sort(p.depths_m.begin(), p.depths_m.end());
+    p.box_xywh = {x0, y0, x1 - x0, y1 - y0};
+    p.pixels = std::move(pixels);
+    out.push_back(std::move(p));
+  }
   return out;
 }
 
@@ -138,29 +172,29 @@ void screen_colours(const Shared<Backend>& sh, const RgbdFrame& frame, const Lab
 /// (k-means on its readings).
 template <class Backend>
 void add_scene_jobs(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments, int k,
-                    int model, std::vector<Job>& jobs) {
+                    int model, PieceCache& cache, std::vector<Job>& jobs) {
   const SceneSettings& ss = sh.settings.scene;
   const FrameSegment& seg = segments.segments[std::size_t(k)];
   const auto [small_face, large_face] = sh.face_m2[std::size_t(model)];
   if (seg.area_m2 < ss.min_area_fraction * small_face) return;
   if (seg.area_m2 > ss.max_area_faces * large_face) return;  // background for this model
   const Mesh& mesh = sh.models[std::size_t(model)].mesh;
-  const std::string who = "segment " + std::to_string(k + 1);
   const int pieces = seg.extent_m > ss.piece_extent_factor * sh.size_m[std::size_t(model)] ||
                              seg.area_m2 > ss.piece_area_faces * large_face
                          ? std::clamp(int(std::ceil(seg.area_m2 / large_face)), 2, std::max(ss.max_pieces, 2))
                          : 1;
-  const std::vector<Image<std::uint8_t>> masks = segment_pieces(frame, segments.labels, seg, pieces);
-  for (const auto& mask : masks) {
-    const std::array<int, 4> b = mask_bbox(mask);
-    if (b[2] < 0) continue;
+  auto cut = cache.find({k, pieces});
+  if (cut == cache.end())
+    cut = cache.emplace(std::make_pair(k, pieces), cut_segment(frame, segments.labels, seg, pieces)).first;
+  for (const SegmentPiece& piece : cut->second) {
+    if (piece.depths_m.empty())
+      throw InvalidInput("segment " + std::to_string(k + 1), "has no valid depth reading inside it");
     Job job;
     job.model = model, job.label = std::int32_t(k + 1);  // segment: group_segments()
-    job.box_xywh = {b[0], b[1], b[2], b[3]};
-    job.depths = proposal_depths(frame.depth_m, mask, mesh, sh.settings.proposals, who);
-    if (masks.size() > 1)  // a piece: GICP against its own readings, not its neighbour's in the segment
-      for (std::size_t i = 0; i < mask.data.size(); ++i)
-        if (mask.data[i]) job.piece_pixels.push_back(std::int32_t(i));
+    job.box_xywh = piece.box_xywh;
+    job.depths = proposal_depths_sorted(piece.depths_m, mesh, sh.settings.proposals);
+    // A piece: GICP against its own readings, not its neighbour's in the segment.
+    if (cut->second.size() > 1) job.piece_pixels = piece.pixels;
     jobs.push_back(std::move(job));
   }
 }
