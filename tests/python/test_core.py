@@ -297,6 +297,15 @@ def test_detect_settings_and_what_a_detection_reports():
     settings.retrieval_jobs_per_object, settings.retrieval_viewpoints = 2, -1
     with pytest.raises(perch2.InvalidInput, match="retrieval_viewpoints"):
         est.detect(depth, rgb, K, settings)
+    for field, bad in (("half_evidence_readings", -1.0), ("half_evidence_readings", float("nan")),
+                       ("max_below_plane_m", float("nan")), ("max_below_plane_m", -0.01)):
+        settings = perch2.DetectSettings()
+        setattr(settings, field, bad)
+        with pytest.raises(perch2.InvalidInput, match=field):
+            est.detect(depth, rgb, K, settings)
+    settings = perch2.DetectSettings()
+    settings.max_below_plane_m = float("inf")  # no support-plane test
+    assert est.detect(depth, rgb, K, settings).below_plane == 0
 
 
 def test_depth_agreement_is_the_share_of_the_visible_surface_the_readings_show():
