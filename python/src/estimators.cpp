@@ -632,6 +632,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, residual_pass);
   PERCH2_RW(scs, SceneSettings, refine_after_placing);
   PERCH2_RW(scs, SceneSettings, local_search_placed_only);
+  PERCH2_RW(scs, SceneSettings, spare_placements);
 
   nb::class_<FrameSegment> fseg(m, "FrameSegment", doc("FrameSegment"));
   PERCH2_RO(fseg, FrameSegment, label);

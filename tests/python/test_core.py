@@ -269,9 +269,20 @@ def test_estimate_scene_objects_and_bad_requests():
     assert est.settings.scene.piece_area_faces == pytest.approx(1.0)
     assert est.settings.scene.max_colour_mismatch == pytest.approx(0.5)
     assert r.jobs + r.screened_out >= 1
-    assert r.refined == 0 and r.reverted == 0  # one object: nothing placed before it
+    assert r.reverted <= r.refined  # spare placements: candidates refined after the box is placed
     assert r.residual_segments == 0 and est.settings.scene.residual_pass
     assert "segment" in perch2.SceneSettings.__doc__.lower() or perch2.SceneSettings.__doc__
+    assert est.settings.scene.spare_placements == 2
+    settings = perch2.SixDofSettings()
+    settings.scene.spare_placements = 0  # each object's first placements, whatever their scores
+    r0 = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
+        depth, rgb, K, [(0, 1)])
+    assert len(r0.poses) == len(r.poses) and r0.missing == r.missing  # one box: the same answer
+    assert r0.refined == 0 and r0.reverted == 0  # one object and no spare: nothing placed before it
+    settings.scene.spare_placements = -1
+    with pytest.raises(perch2.InvalidInput, match="spare_placements"):
+        perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
+            depth, rgb, K, [(0, 1)])
 
 
 def test_detect_settings_and_what_a_detection_reports():
@@ -317,6 +328,10 @@ def test_depth_agreement_is_the_share_of_the_visible_surface_the_readings_show()
     full = est.estimate(depth, rgb, K, [(0, mask, None)]).poses[0]
     assert full.found and full.depth_agreement == pytest.approx(1.0)
     holes = depth.copy()
-    holes[50:70, 70:80] = 0  # half the top face without readings: its render there agrees with nothing
+    holes[50:70, 70:80] = 0  # half the top face without readings (dropout): counts neither way
     half = est.estimate(holes, rgb, K, [(0, mask, None)]).poses[0]
-    assert half.found and half.depth_agreement < 0.9
+    assert half.found and half.depth_agreement == pytest.approx(1.0)
+    behind = depth.copy()
+    behind[50:70, 70:80] += 0.05  # half of it reads 5 cm deeper: the render there covers other depths
+    off = est.estimate(behind, rgb, K, [(0, mask, None)]).poses[0]
+    assert off.found and off.depth_agreement < 0.9

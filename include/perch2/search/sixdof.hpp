@@ -128,7 +128,8 @@ class SixDofEstimator {
   /// The poses of the requested objects in an unsegmented frame (no detector): `objects` says which
   /// models and how many instances of each (BOP's targets give exactly that). See SceneSettings for the
   /// stages. Every placed instance is a pose in SixDofSceneResult::poses; an instance that no acceptable
-  /// candidate explains is counted in `missing`, never placed on a distractor to fill the count. Throws
+  /// candidate explains is counted in `missing`, never placed on a distractor to fill the count. Of an
+  /// object's placements (SceneSettings::spare_placements beyond its count) the best scored are kept. Throws
   /// InvalidInput on a malformed frame, missing colour for the RGB-D cost, an unknown model, a negative
   /// count and bad settings.
   SixDofSceneResult estimate_scene(const RgbdFrame& frame, const std::vector<SixDofObject>& objects) const;
@@ -209,7 +210,30 @@ SixDofResult SixDofEstimator<Backend>::estimate(const RgbdFrame& frame,
 template <class Backend>
 SixDofSceneResult SixDofEstimator<Backend>::estimate_scene(const RgbdFrame& frame,
                                                            const std::vector<SixDofObject>& objects) const {
-  return explain_scene(frame, objects, nullptr);
+  using namespace sixdof_detail;
+  SixDofSceneResult out = explain_scene(frame, objects, nullptr);
+  if (shared_.settings.scene.spare_placements == 0) return out;
+  // Each object keeps its `count` placements with the best detection score, in placement order.
+  const float half_evidence = DetectSettings{}.half_evidence_readings;
+  std::vector<std::vector<std::pair<float, std::size_t>>> ranked(objects.size());
+  for (std::size_t j = 0; j < out.poses.size(); ++j) {
+    const SixDofPose& p = out.poses[j];
+    ranked[std::size_t(p.instance)].push_back(
+        {-detection_score(p.cost, p.depth_agreement, half_evidence), j});
+  }
+  std::vector<bool> keep(out.poses.size(), false);
+  for (std::size_t i = 0; i < objects.size(); ++i) {
+    std::stable_sort(ranked[i].begin(), ranked[i].end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    const std::size_t n = std::min(ranked[i].size(), std::size_t(std::max(objects[i].count, 0)));
+    for (std::size_t r = 0; r < n; ++r) keep[ranked[i][r].second] = true;
+    out.missing[i] = std::max(objects[i].count, 0) - int(n);
+  }
+  std::vector<SixDofPose> kept;
+  for (std::size_t j = 0; j < out.poses.size(); ++j)
+    if (keep[j]) kept.push_back(out.poses[j]);
+  out.poses = std::move(kept);
+  return out;
 }
 
 template <class Backend>
@@ -223,6 +247,9 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   SixDofSceneResult out;
   SixDofResult& result = out.search;
   SceneState scene = scene_state(shared_.models.size(), objects);
+  if (!detecting)
+    for (std::size_t i = 0; i < objects.size(); ++i)
+      if (objects[i].count > 0) scene.spare[i] = ss.spare_placements;
   if (detecting) {
     scene.detect_colour_mismatch = detecting->max_colour_mismatch;
     scene.retrieval_jobs_per_object = detecting->retrieval_jobs_per_object;
@@ -251,6 +278,7 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   if (ss.residual_pass && !scene.placed.empty() &&
       std::any_of(scene.remaining.begin(), scene.remaining.end(), [](int r) { return r > 0; })) {
     t = Clock::now();
+    std::fill(scene.spare.begin(), scene.spare.end(), 0);  // only the missing instances are searched for
     const FrameSegments residual = residual_segments(shared_.settings, frame, scene, smallest_face);
     result.timings.segment += seconds_since(t);
     out.residual_segments = residual.segments.size();

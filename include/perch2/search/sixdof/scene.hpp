@@ -4,9 +4,10 @@
 // explains most readings. Its readings within explain_distance_m of its full-resolution render become its
 // own, and the candidates it took readings from are refined again (refine_after_placing; undone where the
 // earlier pose explained the scene better). Until every requested instance is placed or none is
-// acceptable. Then the readings still unexplained are segmented again for the instances still missing
-// (residual_segments, residual_pass), and each placed object gets its final cost, surface fit and score on
-// its own readings (fit_placed).
+// acceptable, then up to SceneSettings::spare_placements more per object (estimate_scene keeps each
+// object's best scored). Then the readings still unexplained are segmented again for the instances still
+// missing (residual_segments, residual_pass), and each placed object gets its final cost, surface fit and
+// score on its own readings (fit_placed).
 #pragma once
 
 #include <algorithm>
@@ -36,6 +37,7 @@ struct SceneState {
   LabelImage labels;
   std::size_t segments = 0;
   std::vector<int> remaining;        ///< per object given: instances still to place
+  std::vector<int> spare;            ///< per object given: placements beyond its count still allowed
   std::vector<int> model_of_object;  ///< per object given: its model
   std::vector<int> object_of_model;  ///< per model: its object's index, -1 if not requested
   std::vector<Hypothesis> placed;    ///< in placement order
@@ -60,6 +62,7 @@ inline SceneState scene_state(std::size_t models, const std::vector<SixDofObject
   scene.object_of_model.assign(models, -1);
   for (std::size_t i = 0; i < objects.size(); ++i) {
     scene.remaining.push_back(objects[i].count), scene.model_of_object.push_back(objects[i].model);
+    scene.spare.push_back(0);
     if (objects[i].count > 0) scene.object_of_model[std::size_t(objects[i].model)] = int(i);
   }
   return scene;
@@ -159,7 +162,7 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
   std::vector<Job> jobs;
   PieceCache pieces;
   for (std::size_t i = 0; i < scene.remaining.size(); ++i) {
-    if (scene.remaining[i] <= 0) continue;
+    if (scene.remaining[i] <= 0 && scene.spare[i] <= 0) continue;
     for (std::size_t k = 0; k < S; ++k)
       if (segment_points[k] >= std::size_t(ss.min_segment_points))
         add_scene_jobs(sh, frame, segments, int(k), scene.model_of_object[i], pieces, jobs);
@@ -206,8 +209,10 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
   out.candidates += candidates.size();
   std::vector<std::size_t> group_size = group_points;  // unexplained readings per group, last round
   const std::size_t placed_before = scene.placed.size();
-  while (!candidates.empty() &&
-         std::any_of(scene.remaining.begin(), scene.remaining.end(), [](int r) { return r > 0; })) {
+  auto left = [](const std::vector<int>& n) {
+    return std::any_of(n.begin(), n.end(), [](int r) { return r > 0; });
+  };
+  while (!candidates.empty() && (left(scene.remaining) || left(scene.spare))) {
     const Occluders occ_now{frame.depth_m, scene.labels};
     const CloudBatch unexplained = group_clouds(s.observed, frame, scene.labels, groups, S);
     const typename Backend::Cost cost_now(unexplained);
@@ -238,13 +243,17 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
           candidates[touched[j]] = previous[j], c[touched[j]] = was[j], ++out.reverted;
     }
     ++out.rounds;
+    // The requested instances first; spare placements only when none of them can be placed.
     std::size_t pick = candidates.size();
-    for (std::size_t i = 0; i < candidates.size(); ++i) {
-      const int obj = scene.object_of_model[std::size_t(candidates[i].model)];
-      if (obj < 0 || scene.remaining[std::size_t(obj)] <= 0 ||
-          !acceptable(s, c[i], scene.detect_colour_mismatch))
-        continue;
-      if (pick == candidates.size() || explained(c[i]) > explained(c[pick])) pick = i;
+    for (const std::vector<int>* allowed : {&scene.remaining, &scene.spare}) {
+      for (std::size_t i = 0; i < candidates.size(); ++i) {
+        const int obj = scene.object_of_model[std::size_t(candidates[i].model)];
+        if (obj < 0 || (*allowed)[std::size_t(obj)] <= 0 ||
+            !acceptable(s, c[i], scene.detect_colour_mismatch))
+          continue;
+        if (pick == candidates.size() || explained(c[i]) > explained(c[pick])) pick = i;
+      }
+      if (pick < candidates.size()) break;
     }
     if (pick == candidates.size()) break;  // nothing acceptable is left: the rest is missing
     if (ss.local_search_placed_only && s.local.candidates_per_instance > 0)
@@ -252,9 +261,9 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
                     points_estimate, scene.detect_colour_mismatch, result);
     const std::int32_t label = std::int32_t(S + 1 + scene.placed.size());
     explain(now, candidates[pick], label, S, scene.labels, result);
-    const int obj = scene.object_of_model[std::size_t(candidates[pick].model)];
-    --scene.remaining[std::size_t(obj)];
-    scene.placed.push_back(candidates[pick]), scene.placed_object.push_back(obj);
+    const auto obj = std::size_t(scene.object_of_model[std::size_t(candidates[pick].model)]);
+    --(scene.remaining[obj] > 0 ? scene.remaining : scene.spare)[obj];
+    scene.placed.push_back(candidates[pick]), scene.placed_object.push_back(int(obj));
     scene.placed_estimate.push_back(points_estimate[std::size_t(candidates[pick].label - 1)]);
     candidates.erase(candidates.begin() + std::ptrdiff_t(pick));
   }

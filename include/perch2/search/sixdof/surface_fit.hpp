@@ -55,11 +55,13 @@ void fit_poses(const Context<Backend>& ctx, const LabelImage& labels,
   }
 }
 
-/// Per found pose, the fraction of its visible surface (rendered at score_stride; readings of other
-/// labels in front hide it) whose pixel holds a reading within explain_distance_m of the render: near 1
-/// where the readings show the model's shape, low where it covers other depths or none (a model placed
-/// across two objects, over a hole or in front of the background). The cost's tests are 3-D neighbour
-/// tests, tolerant by design; this one is per pixel.
+/// Per found pose, of the pixels of its visible surface (rendered at score_stride; readings of other labels
+/// in front hide it) that hold a reading, the fraction whose reading is within explain_distance_m of the
+/// render: near 1 where the readings show the model's shape, low where it covers other depths (a model
+/// placed across two objects or in front of the background); 0 if none holds one. Pixels without a
+/// reading (dropout at edges, dark or glossy patches) count neither way: counted against, they ranked a
+/// partly hidden object below a pose on another object's readings (generated seed 301). The cost's tests
+/// are 3-D neighbour tests, tolerant by design; this one is per pixel.
 template <class Backend>
 void depth_agreement(const Context<Backend>& ctx, std::vector<SixDofPose>& poses, SixDofResult& result) {
   const SixDofSettings& s = ctx.shared.settings;
@@ -75,9 +77,10 @@ void depth_agreement(const Context<Backend>& ctx, std::vector<SixDofPose>& poses
     std::size_t visible = 0, agree = 0;
     for (auto j = std::size_t(r.offsets[i]); j < std::size_t(r.offsets[i + 1]); ++j) {
       if (r.pixel[j] < 0) continue;
-      ++visible;
       const float d = ctx.frame.depth_m.data[std::size_t(r.pixel[j])];
-      agree += d > 0 && std::abs(d - r.z[j]) <= tol;
+      if (!(d > 0)) continue;  // no reading: a dark or glossy patch, an edge; neither for nor against
+      ++visible;
+      agree += std::abs(d - r.z[j]) <= tol;
     }
     poses[which[i]].depth_agreement = visible > 0 ? float(agree) / float(visible) : 0.f;
   }
