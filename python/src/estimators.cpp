@@ -633,6 +633,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, refine_after_placing);
   PERCH2_RW(scs, SceneSettings, local_search_placed_only);
   PERCH2_RW(scs, SceneSettings, spare_placements);
+  PERCH2_RW(scs, SceneSettings, retrieval_jobs_per_object);
 
   nb::class_<FrameSegment> fseg(m, "FrameSegment", doc("FrameSegment"));
   PERCH2_RO(fseg, FrameSegment, label);

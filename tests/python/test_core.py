@@ -272,17 +272,19 @@ def test_estimate_scene_objects_and_bad_requests():
     assert r.reverted <= r.refined  # spare placements: candidates refined after the box is placed
     assert r.residual_segments == 0 and est.settings.scene.residual_pass
     assert "segment" in perch2.SceneSettings.__doc__.lower() or perch2.SceneSettings.__doc__
-    assert est.settings.scene.spare_placements == 2
+    assert est.settings.scene.spare_placements == 2 and est.settings.scene.retrieval_jobs_per_object == 0
     settings = perch2.SixDofSettings()
     settings.scene.spare_placements = 0  # each object's first placements, whatever their scores
     r0 = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
         depth, rgb, K, [(0, 1)])
     assert len(r0.poses) == len(r.poses) and r0.missing == r.missing  # one box: the same answer
     assert r0.refined == 0 and r0.reverted == 0  # one object and no spare: nothing placed before it
-    settings.scene.spare_placements = -1
-    with pytest.raises(perch2.InvalidInput, match="spare_placements"):
-        perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
-            depth, rgb, K, [(0, 1)])
+    for field in ("spare_placements", "retrieval_jobs_per_object"):
+        settings = perch2.SixDofSettings()
+        setattr(settings.scene, field, -1)
+        with pytest.raises(perch2.InvalidInput, match=field):
+            perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
+                depth, rgb, K, [(0, 1)])
 
 
 def test_detect_settings_and_what_a_detection_reports():

@@ -250,15 +250,20 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   if (!detecting)
     for (std::size_t i = 0; i < objects.size(); ++i)
       if (objects[i].count > 0) scene.spare[i] = ss.spare_placements;
-  if (detecting) {
-    scene.detect_colour_mismatch = detecting->max_colour_mismatch;
-    scene.retrieval_jobs_per_object = detecting->retrieval_jobs_per_object;
-    scene.retrieval_seed_depth = detecting->seed_depth;
-    scene.retrieval_acceptable_only = detecting->retrieval_acceptable_only;
+  // The retrieval: detect()'s settings, or for estimate_scene() their defaults with
+  // SceneSettings::retrieval_jobs_per_object.
+  DetectSettings localization;
+  localization.retrieval_jobs_per_object = ss.retrieval_jobs_per_object;
+  const DetectSettings* ranking = detecting ? detecting : &localization;
+  if (ranking) {
+    scene.retrieval_jobs_per_object = ranking->retrieval_jobs_per_object;
+    scene.retrieval_seed_depth = ranking->seed_depth;
+    scene.retrieval_acceptable_only = ranking->retrieval_acceptable_only;
     scene.retrieval = shared_.settings.proposals;  // its hemisphere and symmetry rule, fewer rotations
-    scene.retrieval.viewpoints = detecting->retrieval_viewpoints;
-    scene.retrieval.inplane_rotations = detecting->retrieval_inplane_rotations;
+    scene.retrieval.viewpoints = ranking->retrieval_viewpoints;
+    scene.retrieval.inplane_rotations = ranking->retrieval_inplane_rotations;
   }
+  if (detecting) scene.detect_colour_mismatch = detecting->max_colour_mismatch;
   out.missing = scene.remaining;
 
   // ---- segment: support plane, connected components, size rule

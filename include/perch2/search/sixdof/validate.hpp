@@ -76,13 +76,14 @@ inline void validate_scene(const SixDofSettings& s, const std::vector<SixDofMode
       !(ss.min_inlier_fraction >= 0 && ss.min_inlier_fraction <= 1) ||
       !(ss.max_colour_mismatch >= 0 && ss.max_colour_mismatch <= 1) || !(ss.explain_distance_m > 0) ||
       ss.min_segment_points < 1 || !(ss.min_colour_fraction >= 0) || ss.colour_samples < 1 ||
-      ss.spare_placements < 0)
+      ss.spare_placements < 0 || ss.retrieval_jobs_per_object < 0)
     throw InvalidInput(
         "SixDofSettings::scene",
         "needs min_area_fraction >= 0, max_area_faces > 0, piece_extent_factor > 0, "
         "piece_area_faces > 0, max_pieces >= 1, min_inlier_fraction and max_colour_mismatch in [0, 1], "
         "explain_distance_m > 0, "
-        "min_segment_points >= 1, min_colour_fraction >= 0, colour_samples >= 1 and spare_placements >= 0");
+        "min_segment_points >= 1, min_colour_fraction >= 0, colour_samples >= 1, spare_placements >= 0 and "
+        "retrieval_jobs_per_object >= 0");
   for (std::size_t i = 0; i < objects.size(); ++i) {
     const std::string who = "objects[" + std::to_string(i) + "]";
     if (objects[i].model < 0 || std::size_t(objects[i].model) >= models.size())
