@@ -31,10 +31,9 @@
 #include <vector>
 
 #ifdef PERCH2_HAVE_PPF
-#include <opencv2/flann.hpp>
 #include <opencv2/imgproc.hpp>
-#include <opencv2/surface_matching.hpp>
-#include <opencv2/surface_matching/ppf_helpers.hpp>
+
+#include "ppf_peer.hpp"
 #endif
 
 #include "bench_support.hpp"
@@ -179,119 +178,21 @@ std::vector<dataset::PoseEstimate> run_perch2(const Options& o, const dataset::B
 }
 
 #ifdef PERCH2_HAVE_PPF
-// Millimetres, the model file's and the sample's units: the pose clustering in match() merges poses whose
-// translations lie within the relative sampling step taken as an absolute distance (setSearchParams'
-// default) whatever their rotations, and averages them; 0.025 mm leaves the poses apart as in the sample,
-// 0.025 m would average a cat's flipped and upright poses.
-constexpr float kPpfUnit = 1000.f;
-constexpr double kPpfSampling = 0.025;  // PPF3DDetector(0.025, 0.05), as in the sample
+using bench::ppf_peer::kPpfUnit;
+using bench::ppf_peer::PpfModels;
 
-/// The model's vertices (millimetres) with area-weighted vertex normals, as OpenCV's N x 6 point cloud.
-cv::Mat vertices_with_normals(const Mesh& mesh) {
-  std::vector<Eigen::Vector3f> n(mesh.vertices.size(), Eigen::Vector3f::Zero());
-  for (const auto& t : mesh.triangles) {
-    const Eigen::Vector3f a = mesh.vertices[std::size_t(t[0])];
-    const Eigen::Vector3f c =
-        (mesh.vertices[std::size_t(t[1])] - a).cross(mesh.vertices[std::size_t(t[2])] - a);
-    for (int k = 0; k < 3; ++k) n[std::size_t(t[k])] += c;
-  }
-  cv::Mat pc(int(mesh.vertices.size()), 6, CV_32F);
-  for (int i = 0; i < pc.rows; ++i) {
-    const Eigen::Vector3f v = mesh.vertices[std::size_t(i)], u = n[std::size_t(i)].normalized();
-    for (int k = 0; k < 3; ++k) pc.at<float>(i, k) = kPpfUnit * v[k], pc.at<float>(i, 3 + k) = u[k];
-  }
-  return pc;
-}
-
-/// The rows of `pc` kept greedily in order so that no two lie closer than `spacing` (a uniform surface
-/// sample when the rows are a fine mesh's vertices).
-cv::Mat thinned(const cv::Mat& pc, float spacing) {
-  std::map<std::array<int, 3>, std::vector<int>> grid;  // cells of side `spacing`
-  std::vector<int> kept;
-  for (int i = 0; i < pc.rows; ++i) {
-    const cv::Vec3f p(pc.ptr<float>(i));
-    const std::array<int, 3> c{int(std::floor(p[0] / spacing)), int(std::floor(p[1] / spacing)),
-                               int(std::floor(p[2] / spacing))};
-    bool free = true;
-    for (int dx = -1; dx <= 1 && free; ++dx)
-      for (int dy = -1; dy <= 1 && free; ++dy)
-        for (int dz = -1; dz <= 1 && free; ++dz) {
-          const auto it = grid.find({c[0] + dx, c[1] + dy, c[2] + dz});
-          if (it == grid.end()) continue;
-          for (const int j : it->second)
-            if (cv::norm(p - cv::Vec3f(pc.ptr<float>(j))) < spacing) free = false;
-        }
-    if (free) grid[c].push_back(i), kept.push_back(i);
-  }
-  cv::Mat out(int(kept.size()), pc.cols, CV_32F);
-  for (int r = 0; r < out.rows; ++r) pc.row(kept[std::size_t(r)]).copyTo(out.row(r));
-  return out;
-}
-
-/// OpenCV's PPF detectors, trained once per model (see the file comment), and the models' clouds for ICP.
-struct PpfModels {
-  std::map<int, int> model_of;
-  std::map<int, cv::Mat> cloud;    // obj_id -> N x 6 (millimetres, unit normals): every vertex, for ICP
-  std::map<int, cv::Mat> sampled;  // obj_id -> the thinned cloud the detector was trained on
-  std::map<int, double> diameter_m;
-  std::map<int, std::unique_ptr<cv::ppf_match_3d::PPF3DDetector>> detector;
-  double train_cpu_s = 0;
-};
-
-// Training gets the vertices thinned to kPpfSampling x the diameter apart, the spacing the setting names,
-// as the sample trains on a sampled cloud. Given every vertex, samplePCByQuantization cuts each side of
-// the bounding box into 1 / 0.025 = 40 cells (1.7-3.2 mm on the cat, finer than 0.025 x 154.5 mm) and keeps
-// 5749 of the cat's 15736 vertices; trainModel then hashes all 5749^2 pairs, and in OpenCV 4.6 each insert
-// walks the bucket's list of pairs with the same quantised feature (t_hash_int.cpp), so training grows
-// with the sum of those lists' squared lengths (1.2e11 steps here: hours, measured 90 s for 1516 points
-// and over 300 s for 2569). Thinned, 1252 remain and training takes seconds.
-PpfModels train_ppf(const dataset::BopDataset& data) {
-  PpfModels m;
-  for (const auto& [id, info] : data.models_info()) {
-    m.model_of[id] = int(m.model_of.size());
-    m.cloud[id] = vertices_with_normals(data.load_model(id));
-    const std::clock_t c0 = std::clock();
-    const cv::Mat sampled = thinned(m.cloud[id], float(kPpfSampling) * kPpfUnit * info.diameter_m);
-    m.detector[id] = std::make_unique<cv::ppf_match_3d::PPF3DDetector>(kPpfSampling, 0.05);
-    m.detector[id]->trainModel(sampled);
-    m.sampled[id] = sampled, m.diameter_m[id] = info.diameter_m;
-    const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
-    m.train_cpu_s += cpu;
-    std::fprintf(stderr, "PPF: trained obj %d on %d of its %d vertices in %.1f CPU s\n", id, sampled.rows,
-                 m.cloud[id].rows, cpu);
-  }
-  return m;
-}
-
-// Per instance (see train_ppf for the model side). The scene is the mask's readings, the mask grown by 3 px
-// as a detector's crop would be (a degraded mask cut short of the silhouette loses the edge readings that
-// fix the pose). Normals from 30 neighbours (a disc of ~3 px, 4-6 mm on these frames; the sample's 6 are as
-// noisy as the Kinect's depth steps). match() quantises the scene to 20 cells per side of its box (260-480
-// samples on the cat) and takes every 5th as a reference point (52-96; the sample's 1/40 leaves ~8); each
-// gives one pose, most votes first. The default clustering is kept: in millimetres it merges nothing, and a
-// coarser position threshold merges unrelated rotations (matchPose compares the rotations' angles, not the
-// rotation between them). ICP refines the 10 most voted, and the pose with the largest fitness (fraction of
-// the model's sampled points within 0.03 x the diameter of a scene reading, as Open3D's
-// evaluate_registration) is kept: OpenCV's residual sums over the pairs left after its outlier rejection
-// and is rescaled per pose, so it favours poses that match few points, and the votes of a partial view
-// favour flips.
+// Per instance (see ppf_peer.hpp for the model side: train_ppf on every vertex). The scene is the mask's
+// readings, the mask grown by 3 px as a detector's crop would be (a degraded mask cut short of the
+// silhouette loses the edge readings that fix the pose), with with_normals' normals. match() quantises the
+// scene to 20 cells per side of its box (260-480 samples on the cat) and takes every 5th as a reference
+// point (52-96; the sample's 1/40 leaves ~8); each gives one pose, most votes first. The default clustering
+// is kept: in millimetres it merges nothing, and a coarser position threshold merges unrelated rotations
+// (matchPose compares the rotations' angles, not the rotation between them). ICP refines the 10 most voted
+// (refine_icp), and the pose with the largest fitness (fraction of the model's sampled points within 0.03 x
+// the diameter of a scene reading, see fitness) is kept: the votes of a partial view favour flips.
 constexpr int kPpfMaskGrowPx = 3;
-constexpr int kPpfNormalNeighbours = 30;
 constexpr double kPpfSceneSampleStep = 1.0 / 5.0, kPpfSceneDistance = 0.05;
 constexpr std::size_t kPpfRefined = 10;
-constexpr double kPpfFitnessDistance = 0.03;  // x diameter
-
-/// The N x 6 cloud's rows whose normals face the camera at the origin.
-cv::Mat facing_camera(const cv::Mat& pc) {
-  std::vector<int> keep;
-  for (int i = 0; i < pc.rows; ++i) {
-    const float* r = pc.ptr<float>(i);
-    if (r[0] * r[3] + r[1] * r[4] + r[2] * r[5] < 0) keep.push_back(i);
-  }
-  cv::Mat out(int(keep.size()), pc.cols, CV_32F);
-  for (int r = 0; r < out.rows; ++r) pc.row(keep[std::size_t(r)]).copyTo(out.row(r));
-  return out;
-}
 
 /// OpenCV PPF + ICP (see the comment above) on every target instance's mask.
 std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, const Images& images,
@@ -329,41 +230,26 @@ std::vector<dataset::PoseEstimate> run_ppf(const dataset::BopDataset& data, cons
             pts.push_back({kPpfUnit * p.x, kPpfUnit * p.y, kPpfUnit * p.z});
           }
       if (pts.size() < 10) continue;
-      cv::Mat scene(int(pts.size()), 3, CV_32F, pts.data()), scene_n;
-      ppf::computeNormalsPC3d(scene, scene_n, kPpfNormalNeighbours, true, cv::Vec3f(0.f, 0.f, 0.f));
+      const cv::Mat scene(int(pts.size()), 3, CV_32F, pts.data());
+      const cv::Mat scene_n = bench::ppf_peer::with_normals(scene);
       std::vector<ppf::Pose3DPtr> results;
       models.detector[obj]->match(scene_n, results, kPpfSceneSampleStep, kPpfSceneDistance);
       if (results.empty()) continue;
       results.resize(std::min(results.size(), kPpfRefined));
-      // ICP(100, 0.005, 2.5, 8) as in the sample, on the model points that face the camera at the pose:
-      // OpenCV's ICP pairs every model point with its nearest scene point, and the far side of the model
-      // would pull it towards the visible surface.
-      ppf::ICP icp(100, 0.005f, 2.5f, 8);
-      cv::flann::GenericIndex<cvflann::L2<float>> scene_index(scene, cvflann::KDTreeSingleIndexParams(8));
-      const float fit_d = float(kPpfFitnessDistance * kPpfUnit * models.diameter_m[obj]);
+      bench::ppf_peer::SceneIndex scene_index(scene, cvflann::KDTreeSingleIndexParams(8));
+      const float fit_d = float(bench::ppf_peer::kPpfFitnessDistance * kPpfUnit * models.diameter_m[obj]);
       ppf::Pose3DPtr best;
       double best_fitness = -1;
       for (const ppf::Pose3DPtr& pose : results) {
-        const cv::Mat visible = facing_camera(ppf::transformPCPose(models.cloud[obj], pose->pose));
-        cv::Matx44d refine = cv::Matx44d::eye();
-        if (visible.rows >= 6) icp.registerModelToScene(visible, scene_n, pose->residual, refine);
-        pose->appendPose(refine);
-        const cv::Mat sampled = ppf::transformPCPose(models.sampled[obj], pose->pose).colRange(0, 3).clone();
-        cv::Mat nn(sampled.rows, 1, CV_32S), d2(sampled.rows, 1, CV_32F);
-        scene_index.knnSearch(sampled, nn, d2, 1, cvflann::SearchParams());
-        const double fitness = double(cv::countNonZero(d2 <= fit_d * fit_d)) / sampled.rows;
+        bench::ppf_peer::refine_icp(models.cloud[obj], pose, scene_n);
+        const double fitness = bench::ppf_peer::fitness(ppf::transformPCPose(models.sampled[obj], pose->pose),
+                                                        scene_index, fit_d);
         if (fitness > best_fitness) best_fitness = fitness, best = pose;
       }
       dataset::PoseEstimate e;
       e.scene_id = key.first, e.im_id = key.second, e.obj_id = obj;
       e.score = float(best_fitness);
-      Pose T = Pose::Identity();
-      for (int r = 0; r < 3; ++r) {
-        for (int c = 0; c < 3; ++c) T.linear()(r, c) = float(best->pose(r, c));
-        T.translation()[r] = float(best->pose(r, 3)) / kPpfUnit;
-      }
-      T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();
-      e.T_cam_obj = T;
+      e.T_cam_obj = bench::ppf_peer::to_pose(best->pose);
       image_rows.push_back(e);
     }
     const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -426,7 +312,9 @@ int main(int argc, char** argv) try {
 #ifdef PERCH2_HAVE_PPF
     if (o.peer) {
       double ppf_cpu = 0;
-      if (!ppf_models) ppf_models = std::make_unique<PpfModels>(train_ppf(data));
+      if (!ppf_models)
+        ppf_models = std::make_unique<PpfModels>(bench::ppf_peer::train_ppf(
+            data, [](const Mesh& mesh, double) { return bench::ppf_peer::vertices_with_normals(mesh); }));
       const auto ppf = run_ppf(data, images, masks, detections, *ppf_models, ppf_cpu);
       add("ppf_icp_" + masks, ppf, ppf_cpu);
     }
@@ -446,7 +334,8 @@ int main(int argc, char** argv) try {
   std::printf(
       "(ADD-S / ADD: AUC over 0-10 cm, percent; AR = mean of the VSD, MSSD, MSPD recalls; per image)\n");
 #ifdef PERCH2_HAVE_PPF
-  if (ppf_models) std::printf("PPF training (once, not in the rows): %.1f CPU s\n", ppf_models->train_cpu_s);
+  if (ppf_models)
+    std::printf("PPF training (once, not in the rows): %.1f CPU s\n", ppf_models->total_train_cpu_s);
 #endif
   std::printf("load average %.2f at the end\n", bench::load_average());
   return 0;
