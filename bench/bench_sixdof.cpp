@@ -261,7 +261,9 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
                                    << r.hypotheses_total << ' ' << double(r.peak_chunk_bytes) / 1048576.0
                                    << ' ' << double(bench::status_kb("VmHWM")) / 1024.0 << ' '
                                    << 0.5 * (load_before + bench::load_average()) << ' ' << instances << ' '
-                                   << t.local << ' ' << t.explain << ' ' << t.fit << '\n';
+                                   << t.local << ' ' << t.explain << ' ' << t.fit << ' ' << t.first_pass
+                                   << ' ' << t.second_pass << ' ' << t.screen << ' '
+                                   << r.proposals_screened_out << '\n';
     wall += t.total;
     ++done;  // before the call: its arguments' evaluation order is unspecified
     cli::print_progress(stderr, done, int(images.size()), wall / done, t.total);
@@ -272,6 +274,7 @@ struct Totals {
   int scenes = 0;
   double observed = 0, proposals = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0, cpu = 0;
   double hypotheses = 0, chunk_mib = 0, rss_mib = 0, load = 0, instances = 0, local = 0, explain = 0, fit = 0;
+  double first_pass = 0, second_pass = 0, screen = 0, screened_out = 0;
 };
 
 struct Row {
@@ -298,9 +301,11 @@ Row evaluate(const Options& o, const std::string& name, const std::string& dir) 
     t.select += v[5], t.total += v[6], t.cpu += v[7], t.hypotheses += v[8];
     t.chunk_mib = std::max(t.chunk_mib, v[9]), t.rss_mib = std::max(t.rss_mib, v[10]);
     t.load += v[11], t.instances += v[12], ++t.scenes;
-    double parts[3] = {0, 0, 0};  // local, explain, fit (absent in older runs' files)
+    // local, explain, fit, first and second pass, screen, screened out (absent in older files)
+    double parts[7] = {0, 0, 0, 0, 0, 0, 0};
     for (double& x : parts) f >> x;
-    t.local += parts[0], t.explain += parts[1], t.fit += parts[2];
+    t.local += parts[0], t.explain += parts[1], t.fit += parts[2], t.first_pass += parts[3];
+    t.second_pass += parts[4], t.screen += parts[5], t.screened_out += parts[6];
     const auto rows = dataset::load_results_csv(csv.string());
     estimates.insert(estimates.end(), rows.begin(), rows.end());
     scenes.insert(std::stoi(e.path().stem().string()));
@@ -361,20 +366,24 @@ void print_tables(const std::vector<Row>& rows) {
   line("all", [](const Row& r) { return &r.report.overall; });
 
   std::printf(
-      "\nmean per scene: stage wall seconds (local, explain: parts of the stages before), process CPU "
-      "seconds, hypotheses; peak memory\n");
-  std::printf("%-16s %6s %5s %7s %7s %7s %7s %7s %7s %7s %7s %7s %7s %6s %8s %8s %6s\n", "config", "scenes",
-              "inst", "observ", "propos", "render", "refine", "cost", "select", "local", "explain", "total",
-              "CPU s", "hyp", "RSS MiB", "chunk MiB", "load");
+      "\nmean per scene: stage wall seconds, then what the passes took of them (pass1, pass2 with the "
+      "polish, local search, surface fit, scene explanation, the screen), process CPU seconds, hypotheses "
+      "(and \n"
+      "those the screen kept from the first pass); peak memory\n");
+  std::printf("%-16s %6s %5s %7s %7s %7s %7s %7s %7s %7s %7s %7s %7s %7s %7s %7s %7s %6s %6s %8s %8s %6s\n",
+              "config", "scenes", "inst", "observ", "propos", "render", "refine", "cost", "select", "total",
+              "screen", "pass1", "pass2", "local", "fit", "explain", "CPU s", "hyp", "out", "RSS MiB",
+              "chunk MiB", "load");
   for (const Row& r : rows) {
     const Totals& t = r.t;
     const double n = std::max(t.scenes, 1);
     std::printf(
-        "%-16s %6d %5.1f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.2f %6.0f %8.0f %8.1f "
-        "%6.2f\n",
+        "%-16s %6d %5.1f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.3f %7.2f "
+        "%6.0f %6.0f %8.0f %8.1f %6.2f\n",
         r.name.c_str(), t.scenes, t.instances / n, t.observed / n, t.proposals / n, t.render / n,
-        t.refine / n, t.cost / n, t.select / n, t.local / n, t.explain / n, t.total / n, t.cpu / n,
-        t.hypotheses / n, t.rss_mib, t.chunk_mib, t.load / n);
+        t.refine / n, t.cost / n, t.select / n, t.total / n, t.screen / n, t.first_pass / n,
+        t.second_pass / n, t.local / n, t.fit / n, t.explain / n, t.cpu / n, t.hypotheses / n,
+        t.screened_out / n, t.rss_mib, t.chunk_mib, t.load / n);
   }
 }
 

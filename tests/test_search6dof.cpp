@@ -410,6 +410,7 @@ TEST_CASE("6-DoF: chunks under a memory budget, 10x the proposals run within the
   // peak_chunk_bytes) would set the peak this test halves.
   st.local.candidates_per_instance = 0;
   st.keep_per_instance = 0;  // every hypothesis through both passes: both scale with the proposals
+  st.screen.stride = 0;      // the passes' chunks only (the screen's run under the same budget)
   SixDofEstimator<B> estimator(sixdof_models(s.models), st);
   const std::vector<SixDofInstance> one{s.instances[0]};
   const SixDofResult whole = estimator.estimate(s.rgbd, one);
@@ -513,13 +514,48 @@ TEST_CASE("6-DoF: the first pass against coarser GICP targets finds the same pos
                        InvalidInput);
 }
 
+TEST_CASE("6-DoF: the screen sends a third of the proposals on and finds the same poses") {
+  const Scene6 s = make_scene(3, {0, 5, 7});
+  SixDofSettings st = test_settings();
+  st.screen.stride = 0;  // no screen
+  SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
+  const SixDofResult all = estimator.estimate(s.rgbd, s.instances);
+  CHECK(all.proposals_screened_out == 0);
+  CHECK(all.timings.screen == 0.0);
+  ScreenSettings on;
+  on.stride = 2 * st.render.stride;  // as the defaults' 16 to 8 (these renders are finer than the defaults')
+  estimator.settings().screen = on;
+  const SixDofResult screened = estimator.estimate(s.rgbd, s.instances);
+  INFO("proposals " << screened.hypotheses_total << ", screened out " << screened.proposals_screened_out);
+  // Every instance here is large enough to be screened: about two thirds of its proposals stop there.
+  CHECK(screened.proposals_screened_out > screened.hypotheses_total / 2);
+  CHECK(screened.timings.screen > 0.0);
+  for (std::size_t k = 0; k < s.instances.size(); ++k) {
+    const auto& mesh = s.models[std::size_t(s.instances[k].model)].mesh;
+    const double e_all = adds(all.poses[k].T_cam_obj, s.gt[k], mesh),
+                 e = adds(screened.poses[k].T_cam_obj, s.gt[k], mesh);
+    INFO("instance " << k << ": ADD-S " << e_all << " -> " << e << " m");
+    CHECK(e < 0.01);
+    CHECK(e < e_all + 0.003);
+  }
+  // Bad settings are refused by name.
+  for (auto bad :
+       {+[](ScreenSettings& x) { x.stride = 4; },  // not coarser than render.stride
+        +[](ScreenSettings& x) { x.icp_iterations = 0; }, +[](ScreenSettings& x) { x.keep_fraction = 0.f; },
+        +[](ScreenSettings& x) { x.keep_fraction = 1.5f; }, +[](ScreenSettings& x) { x.min_keep = 0; }}) {
+    estimator.settings().screen = on;
+    bad(estimator.settings().screen);
+    CHECK_THROWS_WITH_AS(estimator.estimate(s.rgbd, s.instances), doctest::Contains("screen."), InvalidInput);
+  }
+}
+
 TEST_CASE("6-DoF: after the ICP warm-up only distinct poses go on to GICP") {
   const Scene6 s = make_scene(3, {0, 5, 7});
   SixDofSettings st = test_settings();
   st.dedupe_after_warmup = false;
   SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   const SixDofResult all = estimator.estimate(s.rgbd, s.instances);
-  CHECK(all.first_pass_distinct == all.hypotheses_total);
+  CHECK(all.first_pass_distinct == all.hypotheses_total - all.proposals_screened_out);
   estimator.settings().dedupe_after_warmup = true;
   const SixDofResult distinct = estimator.estimate(s.rgbd, s.instances);
   INFO("first pass GICP: " << distinct.first_pass_distinct << " of " << distinct.hypotheses_total);
@@ -753,7 +789,7 @@ TEST_CASE("6-DoF: the second pass keeps the best distinct poses of each instance
   st.dedupe_after_warmup = false;
   SixDofEstimator<thrust_omp::Backend> estimator(sixdof_models(s.models), st);
   const SixDofResult all = estimator.estimate(s.rgbd, s.instances);
-  CHECK(all.second_pass_hypotheses == all.hypotheses_total);
+  CHECK(all.second_pass_hypotheses == all.hypotheses_total - all.proposals_screened_out);
   estimator.settings().keep_per_instance = 3;
   estimator.settings().first_pass_min_points = 0;  // every instance at render.stride: the cap applies
   const SixDofResult kept = estimator.estimate(s.rgbd, s.instances);

@@ -477,6 +477,16 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ps, ProposalSettings, depth_quantile_far);
   PERCH2_RW(ps, ProposalSettings, max_depths);
 
+  nb::class_<ScreenSettings> scr(m, "ScreenSettings", doc("ScreenSettings"));
+  scr.def(nb::init<>());
+  PERCH2_RW(scr, ScreenSettings, stride);
+  PERCH2_RW(scr, ScreenSettings, min_points);
+  PERCH2_RW(scr, ScreenSettings, icp_iterations);
+  PERCH2_RW(scr, ScreenSettings, keep_fraction);
+  PERCH2_RW(scr, ScreenSettings, min_keep);
+  PERCH2_RW(scr, ScreenSettings, use_color);
+  PERCH2_RW(scr, ScreenSettings, in_scene);
+
   nb::class_<ModelSymmetries> sym(m, "ModelSymmetries", doc("ModelSymmetries"));
   sym.def(nb::init<>())
       .def(
@@ -555,6 +565,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ss, SixDofSettings, observed);
   PERCH2_RW(ss, SixDofSettings, render);
   PERCH2_RW(ss, SixDofSettings, first_pass_min_points);
+  PERCH2_RW(ss, SixDofSettings, screen);
   PERCH2_RW(ss, SixDofSettings, first_pass_target_stride);
   PERCH2_RW(ss, SixDofSettings, keep_per_instance);
   PERCH2_RW(ss, SixDofSettings, distinct_translation_m);
@@ -702,6 +713,9 @@ void bind_estimators(nb::module_& m) {
                              {"fit", &SixDofTimings::fit},
                              {"total", &SixDofTimings::total}})
     st.def_ro(name, field, "seconds, wall clock");
+  PERCH2_RO(st, SixDofTimings, screen);
+  PERCH2_RO(st, SixDofTimings, first_pass);
+  PERCH2_RO(st, SixDofTimings, second_pass);
   PERCH2_RO(st, SixDofTimings, local);
   PERCH2_RO(st, SixDofTimings, segment);
   PERCH2_RO(st, SixDofTimings, explain);
@@ -719,6 +733,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(sr, SixDofResult, second_pass_hypotheses);
   PERCH2_RO(sr, SixDofResult, local_candidates);
   PERCH2_RO(sr, SixDofResult, first_pass_distinct);
+  PERCH2_RO(sr, SixDofResult, proposals_screened_out);
   PERCH2_RO(sr, SixDofResult, peak_chunk_bytes);
   PERCH2_RO(sr, SixDofResult, fits_kept);
   PERCH2_RO(sr, SixDofResult, timings);

@@ -177,6 +177,8 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     assert s.render.stride == 8 and s.gicp.icp_warmup_iterations == 8  # the C++ lambdas' values
     assert s.local.turns.fine_turns == 144 and s.local.turns.climb_shift_m == 0.0  # 6-DoF: no shifts
     assert s.first_pass_target_stride == 4 and perch2.SixDofSettings.first_pass_target_stride.__doc__
+    assert s.screen.stride == 16 and s.screen.keep_fraction == pytest.approx(0.34) and not s.screen.in_scene
+    assert perch2.ScreenSettings.keep_fraction.__doc__
     s.local.turns.geometry_tolerance = 0.05
     assert s.local.turns.geometry_tolerance == pytest.approx(0.05)  # nested settings are references, not copies
     assert s.scene.local_search_placed_only
@@ -285,6 +287,19 @@ def test_estimate_scene_objects_and_bad_requests():
         with pytest.raises(perch2.InvalidInput, match=field):
             perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
                 depth, rgb, K, [(0, 1)])
+    # the screen before the first pass: bad values are refused by name; in_scene turns it on here too
+    for field, value in (("stride", 8), ("icp_iterations", 0), ("keep_fraction", 0.0), ("min_keep", 0)):
+        settings = perch2.SixDofSettings()
+        setattr(settings.screen, field, value)
+        with pytest.raises(perch2.InvalidInput, match="screen." + field):
+            perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
+                depth, rgb, K, [(0, 1)])
+    settings = perch2.SixDofSettings()
+    settings.screen.in_scene = True
+    rs = perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings).estimate_scene(
+        depth, rgb, K, [(0, 1)])
+    assert len(rs.poses) == len(r.poses) and rs.missing == r.missing
+    assert r.search.proposals_screened_out == 0 and r.search.timings.screen == 0.0
 
 
 def test_detect_settings_and_what_a_detection_reports():

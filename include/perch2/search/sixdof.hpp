@@ -15,8 +15,10 @@
 //              targets, J_o's points).
 //   proposals  rotations (viewpoints x in-plane, symmetry de-duplicated) x depths on the box centre's ray
 //              (perch2/search/proposals.hpp)
-//   first pass, every proposal, in chunks (sized to memory_budget_bytes: 10x the proposals run in the same
-//   memory, just slower):
+//   screen     (estimate(); estimate_scene() with screen.in_scene) each instance's proposals rendered at
+//              screen.stride (16), pulled by ICP, ranked by the cheap cost: its best third go on from there
+//   first pass, every proposal left, in chunks (sized to memory_budget_bytes: 10x the proposals run in the
+//   same memory, just slower):
 //     render   at render.stride (8), occluders = observed depth with labels: only other instances' or
 //              background pixels hide a hypothesis (its own label never does)
 //     refine   GICP (ICP warm-up first: starts are up to half a proposal spacing off) against the
@@ -73,27 +75,33 @@ namespace perch2 {
 
 namespace sixdof_detail {
 
-/// The search of every job: proposals, the first pass, keep, the second pass, then the best few of each
-/// job searched around (local search) and one finalist per job, in job order. Fills the per-job counts of
-/// `result` and points_estimate (per job: a rendered-point bound for the chunk sizes). defer_local: no
-/// local search; each finalist carries the poses it would have started from (Finalist::local_starts) for
-/// the caller's local_stage().
+/// The search of every job: proposals, the screen (if screen_proposals), the first pass, keep, the second
+/// pass, then the best few of each job searched around (local search) and one finalist per job, in job order.
+/// Fills the per-job counts of `result` and points_estimate (per job: a rendered-point bound for the chunk
+/// sizes). defer_local: no local search; each finalist carries the poses it would have started from
+/// (Finalist::local_starts) for the caller's local_stage().
 template <class Backend>
 std::vector<Finalist> search(const Context<Backend>& ctx, const std::vector<Job>& jobs,
                              const std::vector<std::size_t>& segment_points,
                              std::vector<std::size_t>& points_estimate, SixDofResult& result,
-                             bool defer_local) {
+                             bool defer_local, bool screen_proposals) {
   const SixDofSettings& s = ctx.shared.settings;
   const std::size_t K = jobs.size();
   std::vector<Hypothesis> hyps = propose(ctx, jobs, s.proposals, points_estimate, result);
 
-  // ---- first pass over every proposal (chunks): render, refine, re-render, cheap cost
+  // ---- the screen (a coarser, cheaper pass; the best fraction go on), then the first pass over the rest
+  // (chunks): render, refine, re-render, cheap cost
   const std::vector<int> first_stride = first_pass_strides(s, jobs, segment_points);
+  if (screen_proposals) screen(ctx, jobs, segment_points, first_stride, hyps, points_estimate, result);
+  auto t = Clock::now();
   const std::vector<CostBreakdown> first_costs = first_pass(ctx, first_stride, hyps, points_estimate, result);
+  result.timings.first_pass += seconds_since(t);
 
   // ---- second pass over the best distinct poses of each job: tighter refinement, final cost
   std::vector<Hypothesis> kept = keep_best(ctx.shared, hyps, first_costs, first_stride, K);
+  t = Clock::now();
   const std::vector<CostBreakdown> costs = second_pass(ctx, kept, points_estimate, result);
+  result.timings.second_pass += seconds_since(t);
 
   // ---- select: the best acceptable hypotheses of each job, refined by the local search
   std::vector<Hypothesis> finalists;
@@ -189,7 +197,8 @@ SixDofResult SixDofEstimator<Backend>::estimate(const RgbdFrame& frame,
       cost,    job_cloud, job_label, job_cloud};
   std::vector<std::size_t> points_estimate;  // per job: rendered points bound for the chunk sizes
   const std::vector<Finalist> finalists =
-      search(ctx, jobs, result.segment_points, points_estimate, result, /*defer_local=*/false);
+      search(ctx, jobs, result.segment_points, points_estimate, result, /*defer_local=*/false,
+             /*screen_proposals=*/true);
 
   // ---- select: each instance's finalist; then the surface fit and the score
   t = Clock::now();

@@ -162,7 +162,7 @@ template <class Backend>
 std::vector<Finalist> search(const Context<Backend>& ctx, const std::vector<Job>& jobs,
                              const std::vector<std::size_t>& segment_points,
                              std::vector<std::size_t>& points_estimate, SixDofResult& result,
-                             bool defer_local);
+                             bool defer_local, bool screen_proposals);
 
 }  // namespace sixdof_detail
 }  // namespace perch2

@@ -1,10 +1,14 @@
-// The first pass: every proposal rendered at render.stride (8), brought into its basin by an ICP warm-up
+// The screen, then the first pass. The screen (ScreenSettings): every proposal of an instance large enough
+// rendered at a coarser stride, pulled by ICP and ranked by first_pass_cost; only the best fraction go on.
+// The first pass: every proposal left rendered at render.stride (8), brought into its basin by an ICP warm-up
 // then GICP against its own segment's coarser targets (first_pass_target_stride), re-rendered and ranked
 // by the cheap first_pass_cost. It only has to rank: the second pass finishes the pose. Each job runs at
 // the coarsest stride that still shows it with first_pass_min_points, so a mostly hidden object is refined
 // on a finer grid; hypotheses are grouped by job, so each stride is a contiguous run.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <optional>
 #include <utility>
@@ -53,6 +57,79 @@ std::optional<typename Backend::Registration> first_pass_targets(const Shared<Ba
 template <class Registration>
 const Registration* or_same(const std::optional<Registration>& coarse, const Registration& all) {
   return coarse ? &*coarse : &all;
+}
+
+/// Whether the screen runs for a job whose first pass runs at `first_stride` on a segment of
+/// `segment_points` observed points: not for a mostly hidden instance (refined on a finer grid) nor one
+/// expected to show fewer than screen.min_points at the screen's stride.
+inline bool screened(const SixDofSettings& s, int first_stride, std::size_t segment_points) {
+  const ScreenSettings& sc = s.screen;
+  if (sc.stride == 0 || first_stride < s.render.stride) return false;
+  const double expected =
+      double(segment_points) * double(s.observed.stride * s.observed.stride) / double(sc.stride * sc.stride);
+  return expected >= double(sc.min_points);
+}
+
+/// The screen (ScreenSettings): the proposals of every screened job (screened(), and more than min_keep
+/// of them) rendered at screen.stride, moved by the ICP passes against the first pass' targets and scored
+/// with first_pass_cost; each such job keeps its best keep_fraction (at least min_keep; those showing too
+/// few points rank last) at the poses the screen reached. `hyps` stays grouped by job, in order.
+template <class Backend>
+void screen(const Context<Backend>& ctx, const std::vector<Job>& jobs,
+            const std::vector<std::size_t>& segment_points, const std::vector<int>& first_stride,
+            std::vector<Hypothesis>& hyps, const std::vector<std::size_t>& points_estimate,
+            SixDofResult& result) {
+  const SixDofSettings& s = ctx.shared.settings;
+  std::vector<std::size_t> proposals(jobs.size(), 0);
+  for (const Hypothesis& h : hyps) ++proposals[std::size_t(h.label - 1)];
+  std::vector<char> on(jobs.size());  // a job with no more than min_keep proposals would keep them all
+  for (std::size_t k = 0; k < jobs.size(); ++k)
+    on[k] = proposals[k] > std::size_t(s.screen.min_keep) &&
+            screened(s, first_stride[k], segment_points[std::size_t(jobs[k].segment)]);
+  std::vector<Hypothesis> coarse;
+  for (const Hypothesis& h : hyps)
+    if (on[std::size_t(h.label - 1)]) coarse.push_back(h);
+  if (coarse.empty()) return;
+  const auto t = Clock::now();
+  Context<Backend> first_ctx = ctx;  // the first pass' coarser targets
+  first_ctx.registration = ctx.first_pass_registration;
+  Pass pass;
+  pass.stride = pass.score_stride = s.screen.stride;
+  pass.gicp = s.gicp;
+  pass.gicp.icp_warmup_iterations = s.screen.icp_iterations;
+  pass.warmup_only = true;
+  CostSettings cost = s.first_pass_cost;
+  cost.use_color = s.screen.use_color;
+  pass.cost = &cost;
+  const std::vector<CostBreakdown> costs = run_chunks(first_ctx, pass, coarse, points_estimate, result);
+
+  std::vector<std::vector<std::size_t>> of_job(jobs.size());
+  for (std::size_t i = 0; i < coarse.size(); ++i) of_job[std::size_t(coarse[i].label - 1)].push_back(i);
+  const int min_points = min_points_at(s, s.screen.stride);
+  std::vector<char> keep(coarse.size(), 0);
+  for (std::vector<std::size_t>& idx : of_job) {
+    auto rank = [&](std::size_t i) {
+      return std::make_pair(costs[i].rendered_points < min_points, costs[i].total);
+    };
+    std::stable_sort(idx.begin(), idx.end(), [&](std::size_t a, std::size_t b) { return rank(a) < rank(b); });
+    const std::size_t n =
+        std::max(std::size_t(s.screen.min_keep),
+                 std::size_t(std::ceil(double(s.screen.keep_fraction) * double(idx.size()))));
+    for (std::size_t r = 0; r < std::min(n, idx.size()); ++r) keep[idx[r]] = 1;
+  }
+  std::vector<Hypothesis> out;
+  std::size_t c = 0;
+  for (const Hypothesis& h : hyps) {
+    if (!on[std::size_t(h.label - 1)]) {
+      out.push_back(h);
+      continue;
+    }
+    if (keep[c]) out.push_back(coarse[c]);
+    ++c;
+  }
+  result.proposals_screened_out += hyps.size() - out.size();
+  hyps = std::move(out);
+  result.timings.screen += seconds_since(t);
 }
 
 /// Runs the first pass over `hyps` (grouped by job; job k at first_stride[k]) against ctx's first-pass

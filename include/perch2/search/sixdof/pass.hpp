@@ -58,6 +58,7 @@ struct Pass {
   int score_stride = 4;
   const CostSettings* cost = nullptr;
   bool dedupe_after_warmup = false;  ///< GICP only the distinct poses the ICP warm-up reached
+  bool warmup_only = false;          ///< refine with gicp's ICP warm-up only (the screen)
   bool first = false;                ///< the first pass (counted in first_pass_distinct)
 };
 
@@ -98,7 +99,7 @@ std::size_t run_chunk(const Context<Backend>& ctx, const Pass& pass, std::vector
     if (pass.first) result.first_pass_distinct += chunk.size();
     const CloudBatch rendered = render(ctx, chunk, pass.stride, result);
     points = rendered.size();
-    refine(ctx, chunk, rendered, pass.gicp, result);
+    refine(ctx, chunk, rendered, pass.gicp, result, pass.warmup_only);
   }
   const CloudBatch rendered = render(ctx, chunk, pass.score_stride, result);
   points = std::max(points, rendered.size());

@@ -28,9 +28,12 @@ struct SixDofPose {
 
 struct SixDofTimings {  ///< seconds, wall clock
   double observed = 0, proposals = 0, render = 0, refine = 0, cost = 0, select = 0, total = 0;
-  double local = 0;    ///< the local search (its renders and costs are also in render and cost)
-  double fit = 0;      ///< the final surface fit (its re-score's render and cost are in render and cost)
-  double segment = 0;  ///< estimate_scene: the frame's segmentation (plane, components)
+  double screen = 0;       ///< the screen before the first pass (its renders, ICP, costs also above)
+  double first_pass = 0;   ///< the first pass over every proposal (its renders, GICP, costs also above)
+  double second_pass = 0;  ///< the second pass and polish of the kept poses (also in render, refine, cost)
+  double local = 0;        ///< the local search (its renders and costs are also in render and cost)
+  double fit = 0;          ///< the final surface fit (its re-score's render and cost are in render and cost)
+  double segment = 0;      ///< estimate_scene: the frame's segmentation (plane, components)
   double explain =
       0;  ///< estimate_scene: placing objects one by one (its renders and costs also in render, cost)
   double retrieve = 0;  ///< detect(): the retrieval's coarse search (its renders, GICP and costs only here)
@@ -49,6 +52,7 @@ struct SixDofResult {
   std::size_t fits_kept = 0;               ///< instances whose final surface fit was kept (fit_cost_slack)
   /// First-pass hypotheses refined by GICP after the warm-up's de-duplication (hypotheses_total without it)
   std::size_t first_pass_distinct = 0;
+  std::size_t proposals_screened_out = 0;  ///< proposals the screen kept from the first pass (ScreenSettings)
   /// Largest chunk's estimated working memory (its rendered points x bytes_per_point), bytes.
   std::size_t peak_chunk_bytes = 0;
   SixDofTimings timings;

@@ -199,7 +199,8 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
   const Context<Backend> ctx = job_targets.context(sh, frame);
   std::vector<std::size_t> points_estimate;
   const std::vector<Finalist> found =
-      search(ctx, jobs, group_points, points_estimate, result, ss.local_search_placed_only);
+      search(ctx, jobs, group_points, points_estimate, result, ss.local_search_placed_only,
+             ctx.shared.settings.screen.in_scene);
 
   // ---- explain the scene object by object
   t = Clock::now();

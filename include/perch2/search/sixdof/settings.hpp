@@ -160,6 +160,26 @@ struct SceneSettings {
   int retrieval_jobs_per_object = 0;
 };
 
+/// The screen before the first pass (SixDofSettings::screen): every proposal of an instance whose
+/// segment shows at least min_points at `stride` is rendered at that coarser stride, pulled by `icp_
+/// iterations` ICP passes and scored with first_pass_cost; only the instance's best keep_fraction (at
+/// least min_keep) go on to the first pass, from where the screen left them. The first pass then runs
+/// on a fraction of the proposals at a fraction of their cost each.
+struct ScreenSettings {
+  int stride = 16;              ///< render stride of the screen (> render.stride; 0 = no screen)
+  int min_points = 12;          ///< instances expected to show fewer points at `stride` are not screened
+  int icp_iterations = 8;       ///< ICP passes (first pass' cap and targets), >= 1
+  float keep_fraction = 0.34f;  ///< of each screened instance's proposals, in (0, 1]
+  int min_keep = 24;            ///< ... but at least this many (>= 1)
+  /// Rank by first_pass_cost with its colour test (true) or by depth only (false; on generated clutter
+  /// without masks it lost an instance and ADD-S AUC 0.9).
+  bool use_color = true;
+  /// estimate_scene() and detect() screen too. Off by default: on generated clutter without masks the
+  /// screen made the search 30 % faster at the same ADD-S and ADD(-S) AUC but BOP AR 1.0-1.2 lower (printed
+  /// cans found turned a few degrees; docs/benchmarks.md, "Where the time goes").
+  bool in_scene = false;
+};
+
 struct SixDofSettings {
   ProposalSettings proposals;  ///< 40 viewpoints x 4 in-plane x <= 3 depths every 0.02 m (proposals.hpp)
   ObservedCloudSettings observed{2};  ///< observed points (GICP targets, J_o) on this stride grid
@@ -176,6 +196,7 @@ struct SixDofSettings {
   /// its observed points: segment x (observed.stride / stride)^2) has its first pass at half the stride,
   /// down to second_pass_stride: a mostly hidden object keeps enough points for GICP and the ranking.
   int first_pass_min_points = 40;
+  ScreenSettings screen;  ///< the cheaper pass before the first one (see ScreenSettings)
   /// The first pass' GICP targets (and its ICP warm-up's): each segment's observed points on this coarser
   /// pixel grid (>= 1; <= observed.stride = all of them). A segment that would keep fewer than
   /// kFirstPassMinTargets keeps all. The first pass only has to bring a proposal into its basin, and GICP's

@@ -25,6 +25,14 @@ inline void validate_settings(const SixDofSettings& s, const RgbdFrame& frame) {
   if (s.second_pass_stride < 1) throw InvalidInput("SixDofSettings::second_pass_stride", "must be >= 1");
   if (s.render.stride < 1) throw InvalidInput("SixDofSettings::render.stride", "must be >= 1");
   if (s.keep_per_instance < 0) throw InvalidInput("SixDofSettings::keep_per_instance", "must be >= 0");
+  if (s.screen.stride != 0 && s.screen.stride <= s.render.stride)
+    throw InvalidInput("SixDofSettings::screen.stride",
+                       "must be 0 (no screen) or > render.stride, got " + std::to_string(s.screen.stride));
+  if (s.screen.icp_iterations < 1)
+    throw InvalidInput("SixDofSettings::screen.icp_iterations", "must be >= 1");
+  if (!(s.screen.keep_fraction > 0.f && s.screen.keep_fraction <= 1.f))
+    throw InvalidInput("SixDofSettings::screen.keep_fraction", "must be in (0, 1]");
+  if (s.screen.min_keep < 1) throw InvalidInput("SixDofSettings::screen.min_keep", "must be >= 1");
   if (s.first_pass_target_stride < 1)
     throw InvalidInput("SixDofSettings::first_pass_target_stride",
                        "must be >= 1, got " + std::to_string(s.first_pass_target_stride));
