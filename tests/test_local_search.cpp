@@ -112,6 +112,25 @@ TEST_CASE("search_turns: a label's letters are lined up about a flat axis, from 
   }
 }
 
+TEST_CASE("search_turns: a finer climb than the fine sweep re-measures its starts and climbs at its stride") {
+  const float truth = -2.7f;
+  TurnSearchSettings s;
+  s.climb_shift_m = 0.f;
+  s.sweep_stride = 8, s.fine_stride = 4, s.final_stride = 2, s.climb_stride = 1;  // all distinct
+  Measure m{can_geometry, Print{}, truth};
+  std::vector<Pose> poses{Pose{}};
+  search_turns(poses, 2, 0, kPixels, s, turn, shift, m);
+  CHECK(std::abs(wrap(poses[0].angle[0] - truth)) <= s.climb_step_rad / 2);
+  // The fine sweep (the pose and 143 turns) at fine_stride; the starts (at most s.starts) again, then every
+  // climb move, at climb_stride.
+  CHECK(std::count(m.strides.begin(), m.strides.end(), s.fine_stride) == 144);
+  const auto at_climb = std::count(m.strides.begin(), m.strides.end(), s.climb_stride);
+  CHECK(at_climb >= 3);  // at least one start and one move
+  CHECK(at_climb <= s.starts * (1 + 2 * s.levels * s.moves_per_level));
+  s.climb_stride = -1;
+  CHECK_THROWS_WITH_AS(validate(s, "turns"), doctest::Contains("turns.climb_stride"), InvalidInput);
+}
+
 TEST_CASE("search_turns: a box's half turn is taken only when its print agrees better") {
   // Axis 0: the geometry repeats every half turn (a box seen end on); the print's truth is 0 or pi.
   for (const float printed : {0.f, kPi}) {

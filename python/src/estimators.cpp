@@ -231,6 +231,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(turns, TurnSearchSettings, geometry_tolerance);
   PERCH2_RW(turns, TurnSearchSettings, fine_turns);
   PERCH2_RW(turns, TurnSearchSettings, fine_stride);
+  PERCH2_RW(turns, TurnSearchSettings, climb_stride);
   PERCH2_RW(turns, TurnSearchSettings, starts);
   PERCH2_RW(turns, TurnSearchSettings, climb_step_rad);
   PERCH2_RW(turns, TurnSearchSettings, climb_shift_m);

@@ -195,7 +195,9 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     # the 3-DoF yaw search and the 6-DoF final surface fit, defaults from their C++ structs
     assert t.yaw_search.enabled and t.yaw_search.turns.sweep_turns == 36 and t.yaw_search.turns.final_stride == 1
     assert t.yaw_search.turns.climb_shift_m == pytest.approx(0.001)
-    assert t.yaw_search.turns.fine_stride == 1  # the 3-DoF default; the 6-DoF local search keeps 2
+    # the 3-DoF default: the fine sweep at stride 2, the climb at every pixel; the 6-DoF local search climbs at 2
+    assert t.yaw_search.turns.fine_stride == 2 and t.yaw_search.turns.climb_stride == 1
+    assert s.local.turns.fine_stride == 2 and s.local.turns.climb_stride == 0
     assert t.missing_depth_hides and t.second_look and t.second_look_margin_m == pytest.approx(0.01)
     assert t.polish_rounds == 2 and t.polish_stride == 1 and t.polish_max_distance_m == pytest.approx(0.01)
     assert perch2.TurnSearchSettings.geometry_tolerance.__doc__

@@ -22,7 +22,7 @@
 //              look-alikes about the other axes, e.g. a box's half turn), at most `starts - 1`, each more
 //              than two steps from the others about its axis; a pose with neither keeps its pose
 //   climb      each start turned about the flat axes by +-climb_step_rad, halving over `levels`, at
-//              fine_stride: a move is taken when it raises the appearance
+//              climb_stride (0: fine_stride): a move is taken when it raises the appearance
 //   choose     the climbed starts compared at final_stride (fine print decides between look-alike sides):
 //              the best appearance among those whose geometry is within the tolerance of the pose's wins,
 //              if it beats the pose's own
@@ -68,7 +68,10 @@ struct TurnSearchSettings {
   /// label's letters, which line up within a few degrees only, are not stepped over.
   int fine_turns = 144;
   int fine_stride = 2;  ///< render stride of the fine sweep and of the climb (>= 1)
-  int starts = 4;       ///< the pose and at most starts - 1 of its best turns are climbed and compared (>= 1)
+  /// Render stride of the climb if finer than the fine sweep's (>= 0; 0 = fine_stride): the sweep only has
+  /// to rank the turns, the climb's few renders decide between the best starts (re-measured at this stride).
+  int climb_stride = 0;
+  int starts = 4;  ///< the pose and at most starts - 1 of its best turns are climbed and compared (>= 1)
   float climb_step_rad = 0.0109f;  ///< the climb's first turn, radians (> 0): half the fine sweep's step
   /// The climb also shifts each start by +-climb_shift_m along the caller's shift axes, halving with the
   /// turn (>= 0; 0 = turns only): a label's letters line up only within a pixel or two, and the geometry
@@ -88,6 +91,7 @@ inline void validate(const TurnSearchSettings& s, const std::string& who) {
   if (s.fine_turns < 2) throw InvalidInput(who + ".fine_turns", "must be >= 2");
   if (s.sweep_stride < 1 || s.fine_stride < 1 || s.final_stride < 1)
     throw InvalidInput(who, "sweep_stride, fine_stride and final_stride must be >= 1");
+  if (s.climb_stride < 0) throw InvalidInput(who + ".climb_stride", "must be >= 0 (0 = fine_stride)");
   if (!(std::isfinite(s.geometry_tolerance) && s.geometry_tolerance >= 0))
     throw InvalidInput(who + ".geometry_tolerance", "must be finite and >= 0");
   if (s.starts < 1) throw InvalidInput(who + ".starts", "must be >= 1");
@@ -210,7 +214,15 @@ std::vector<TurnMeasure> search_turns(std::vector<P>& poses, int axes, int shift
     begin = end;
   }
 
-  // ---- climb each start about its pose's flat axes (and along the shift axes), at fine_stride
+  // ---- climb each start about its pose's flat axes (and along the shift axes), at climb_stride
+  const int climb_stride = s.climb_stride > 0 ? s.climb_stride : s.fine_stride;
+  if (climb_stride != s.fine_stride) {  // the starts' appearance at the climb's stride, to compare with
+    std::vector<P> at;
+    for (const Start& st : starts) at.push_back(st.p);
+    count(at.size());
+    const std::vector<TurnSample> m = measure(at, climb_stride, false);
+    for (std::size_t i = 0; i < starts.size(); ++i) starts[i].appearance = appearance(starts[i].pose, m[i]);
+  }
   float step = s.climb_step_rad, step_m = s.climb_shift_m;
   for (int level = 0; level < s.levels; ++level, step *= 0.5f, step_m *= 0.5f) {
     std::vector<bool> active(starts.size(), true);
@@ -229,7 +241,7 @@ std::vector<TurnMeasure> search_turns(std::vector<P>& poses, int axes, int shift
       }
       if (moved.empty()) break;
       count(moved.size());
-      const std::vector<TurnSample> m = measure(moved, s.fine_stride, false);
+      const std::vector<TurnSample> m = measure(moved, climb_stride, false);
       std::vector<std::ptrdiff_t> best(starts.size(), -1);
       std::vector<float> best_appearance(starts.size());
       for (std::size_t j = 0; j < moved.size(); ++j) {
