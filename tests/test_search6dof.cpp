@@ -538,6 +538,14 @@ TEST_CASE("6-DoF: the screen sends a third of the proposals on and finds the sam
     CHECK(e < 0.01);
     CHECK(e < e_all + 0.003);
   }
+  // screen.hidden screens the instances refined on a finer grid too (none here are): the same poses.
+  estimator.settings().screen.hidden = true;
+  const SixDofResult hidden_too = estimator.estimate(s.rgbd, s.instances);
+  CHECK(hidden_too.proposals_screened_out >= screened.proposals_screened_out);
+  for (std::size_t k = 0; k < s.instances.size(); ++k) {
+    const auto& mesh = s.models[std::size_t(s.instances[k].model)].mesh;
+    CHECK(adds(hidden_too.poses[k].T_cam_obj, s.gt[k], mesh) < 0.01);
+  }
   // Bad settings are refused by name.
   for (auto bad :
        {+[](ScreenSettings& x) { x.stride = 4; },  // not coarser than render.stride

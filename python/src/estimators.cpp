@@ -487,6 +487,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scr, ScreenSettings, min_keep);
   PERCH2_RW(scr, ScreenSettings, use_color);
   PERCH2_RW(scr, ScreenSettings, in_scene);
+  PERCH2_RW(scr, ScreenSettings, hidden);
 
   nb::class_<ModelSymmetries> sym(m, "ModelSymmetries", doc("ModelSymmetries"));
   sym.def(nb::init<>())

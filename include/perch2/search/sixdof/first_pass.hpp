@@ -59,15 +59,24 @@ const Registration* or_same(const std::optional<Registration>& coarse, const Reg
   return coarse ? &*coarse : &all;
 }
 
+/// The screen's stride for a job whose first pass runs at `first_stride`: screen.stride for one at
+/// render.stride, the same ratio finer for a mostly hidden instance refined on a finer grid
+/// (screen.hidden; 0 = not screened).
+inline int screen_stride(const SixDofSettings& s, int first_stride) {
+  if (s.screen.stride == 0) return 0;
+  if (first_stride >= s.render.stride) return s.screen.stride;
+  return s.screen.hidden ? std::max(first_stride + 1, first_stride * s.screen.stride / s.render.stride) : 0;
+}
+
 /// Whether the screen runs for a job whose first pass runs at `first_stride` on a segment of
-/// `segment_points` observed points: not for a mostly hidden instance (refined on a finer grid) nor one
-/// expected to show fewer than screen.min_points at the screen's stride.
+/// `segment_points` observed points: it has a screen_stride() and is expected to show at least
+/// screen.min_points there.
 inline bool screened(const SixDofSettings& s, int first_stride, std::size_t segment_points) {
-  const ScreenSettings& sc = s.screen;
-  if (sc.stride == 0 || first_stride < s.render.stride) return false;
+  const int stride = screen_stride(s, first_stride);
+  if (stride == 0) return false;
   const double expected =
-      double(segment_points) * double(s.observed.stride * s.observed.stride) / double(sc.stride * sc.stride);
-  return expected >= double(sc.min_points);
+      double(segment_points) * double(s.observed.stride * s.observed.stride) / double(stride * stride);
+  return expected >= double(s.screen.min_points);
 }
 
 /// The screen (ScreenSettings): the proposals of every screened job (screened(), and more than min_keep
@@ -93,21 +102,37 @@ void screen(const Context<Backend>& ctx, const std::vector<Job>& jobs,
   const auto t = Clock::now();
   Context<Backend> first_ctx = ctx;  // the first pass' coarser targets
   first_ctx.registration = ctx.first_pass_registration;
-  Pass pass;
-  pass.stride = pass.score_stride = s.screen.stride;
-  pass.gicp = s.gicp;
-  pass.gicp.icp_warmup_iterations = s.screen.icp_iterations;
-  pass.warmup_only = true;
   CostSettings cost = s.first_pass_cost;
   cost.use_color = s.screen.use_color;
-  pass.cost = &cost;
-  const std::vector<CostBreakdown> costs = run_chunks(first_ctx, pass, coarse, points_estimate, result);
+  std::vector<CostBreakdown> costs;
+  std::vector<Hypothesis> moved;
+  for (std::size_t begin = 0; begin < coarse.size();) {  // one run per stride (hypotheses grouped by job)
+    const int stride = screen_stride(s, first_stride[std::size_t(coarse[begin].label - 1)]);
+    std::size_t end = begin;
+    while (end < coarse.size() &&
+           screen_stride(s, first_stride[std::size_t(coarse[end].label - 1)]) == stride)
+      ++end;
+    Pass pass;
+    pass.stride = pass.score_stride = stride;
+    pass.gicp = s.gicp;
+    pass.gicp.icp_warmup_iterations = s.screen.icp_iterations;
+    pass.warmup_only = true;
+    pass.cost = &cost;
+    std::vector<Hypothesis> run(coarse.begin() + std::ptrdiff_t(begin), coarse.begin() + std::ptrdiff_t(end));
+    const std::vector<CostBreakdown> c = run_chunks(first_ctx, pass, run, points_estimate, result);
+    costs.insert(costs.end(), c.begin(), c.end());
+    moved.insert(moved.end(), run.begin(), run.end());
+    begin = end;
+  }
+  coarse = std::move(moved);
 
   std::vector<std::vector<std::size_t>> of_job(jobs.size());
   for (std::size_t i = 0; i < coarse.size(); ++i) of_job[std::size_t(coarse[i].label - 1)].push_back(i);
-  const int min_points = min_points_at(s, s.screen.stride);
   std::vector<char> keep(coarse.size(), 0);
   for (std::vector<std::size_t>& idx : of_job) {
+    if (idx.empty()) continue;
+    const int min_points =
+        min_points_at(s, screen_stride(s, first_stride[std::size_t(coarse[idx[0]].label - 1)]));
     auto rank = [&](std::size_t i) {
       return std::make_pair(costs[i].rendered_points < min_points, costs[i].total);
     };
