@@ -199,8 +199,14 @@ struct SixDofSettings {
   }();
   /// An instance whose segment would show fewer than this many points at render.stride (estimated from
   /// its observed points: segment x (observed.stride / stride)^2) has its first pass at half the stride,
-  /// down to second_pass_stride: a mostly hidden object keeps enough points for GICP and the ranking.
-  int first_pass_min_points = 40;
+  /// down to second_pass_stride: a mostly hidden object keeps enough points for GICP and the ranking. 24
+  /// (was 40; with the screen, thrust_omp, Intel Xeon VM, ADD(-S) AUC / BOP AR without VSD, s per image):
+  /// bench_sixdof gt 96.9 / 0.963 -> 96.7 / 0.958 at 1.01 -> 0.81 s; held-out seed 5050 gt 96.1 / 0.929 ->
+  /// 95.8 / 0.923 at 1.23 -> 1.03 s, det 87.4 / 0.843 -> 86.7 / 0.841 at 1.30 -> 1.01 s; seed 4040 gt 95.9 /
+  /// 0.951 -> 96.5 / 0.960 at 1.03 -> 0.75 s; without masks 94.8 / 0.931 -> 95.3 / 0.932 at 4.25 -> 3.57 s
+  /// (seed 2020) and 91.7 / 0.885 both at 4.33 -> 3.84 s (seed 4040); the real LINEMOD-cat frames AR 0.958
+  /// both at 0.27 -> 0.17 s (gt masks), 0.947 -> 0.948 at 0.31 -> 0.20 s (degraded masks).
+  int first_pass_min_points = 24;
   ScreenSettings screen;  ///< the cheaper pass before the first one (see ScreenSettings)
   /// The first pass' GICP targets (and its ICP warm-up's): each segment's observed points on this coarser
   /// pixel grid (>= 1; <= observed.stride = all of them). A segment that would keep fewer than
