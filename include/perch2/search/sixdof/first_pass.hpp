@@ -59,6 +59,33 @@ const Registration* or_same(const std::optional<Registration>& coarse, const Reg
   return coarse ? &*coarse : &all;
 }
 
+/// Runs `pass` (its stride and score_stride set per run) over each contiguous run of `hyps` whose jobs
+/// share a stride (job k at stride_of[k]; hypotheses are grouped by job) against ctx's first-pass targets;
+/// moves them as run_chunks does and returns their costs, in order.
+template <class Backend>
+std::vector<CostBreakdown> run_by_stride(const Context<Backend>& ctx, Pass pass,
+                                         const std::vector<int>& stride_of, std::vector<Hypothesis>& hyps,
+                                         const std::vector<std::size_t>& points_estimate,
+                                         SixDofResult& result) {
+  Context<Backend> first_ctx = ctx;  // against the first pass' coarser targets
+  first_ctx.registration = ctx.first_pass_registration;
+  auto stride = [&](const Hypothesis& h) { return stride_of[std::size_t(h.label - 1)]; };
+  std::vector<CostBreakdown> costs;
+  std::vector<Hypothesis> moved;  // after the pass (without the warm-up's duplicates), in order
+  for (std::size_t begin = 0; begin < hyps.size();) {
+    std::size_t end = begin;
+    while (end < hyps.size() && stride(hyps[end]) == stride(hyps[begin])) ++end;
+    pass.stride = pass.score_stride = stride(hyps[begin]);
+    std::vector<Hypothesis> run(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
+    const std::vector<CostBreakdown> c = run_chunks(first_ctx, pass, run, points_estimate, result);
+    costs.insert(costs.end(), c.begin(), c.end());
+    moved.insert(moved.end(), run.begin(), run.end());
+    begin = end;
+  }
+  hyps = std::move(moved);
+  return costs;
+}
+
 /// The screen's stride for a job whose first pass runs at `first_stride`: screen.stride for one at
 /// render.stride, the same ratio finer for a mostly hidden instance refined on a finer grid
 /// (screen.hidden; 0 = not screened).
@@ -100,39 +127,24 @@ void screen(const Context<Backend>& ctx, const std::vector<Job>& jobs,
     if (on[std::size_t(h.label - 1)]) coarse.push_back(h);
   if (coarse.empty()) return;
   const auto t = Clock::now();
-  Context<Backend> first_ctx = ctx;  // the first pass' coarser targets
-  first_ctx.registration = ctx.first_pass_registration;
   CostSettings cost = s.first_pass_cost;
   cost.use_color = s.screen.use_color;
-  std::vector<CostBreakdown> costs;
-  std::vector<Hypothesis> moved;
-  for (std::size_t begin = 0; begin < coarse.size();) {  // one run per stride (hypotheses grouped by job)
-    const int stride = screen_stride(s, first_stride[std::size_t(coarse[begin].label - 1)]);
-    std::size_t end = begin;
-    while (end < coarse.size() &&
-           screen_stride(s, first_stride[std::size_t(coarse[end].label - 1)]) == stride)
-      ++end;
-    Pass pass;
-    pass.stride = pass.score_stride = stride;
-    pass.gicp = s.gicp;
-    pass.gicp.icp_warmup_iterations = s.screen.icp_iterations;
-    pass.warmup_only = true;
-    pass.cost = &cost;
-    std::vector<Hypothesis> run(coarse.begin() + std::ptrdiff_t(begin), coarse.begin() + std::ptrdiff_t(end));
-    const std::vector<CostBreakdown> c = run_chunks(first_ctx, pass, run, points_estimate, result);
-    costs.insert(costs.end(), c.begin(), c.end());
-    moved.insert(moved.end(), run.begin(), run.end());
-    begin = end;
-  }
-  coarse = std::move(moved);
+  Pass pass;
+  pass.gicp = s.gicp;
+  pass.gicp.icp_warmup_iterations = s.screen.icp_iterations;
+  pass.warmup_only = true;
+  pass.cost = &cost;
+  std::vector<int> stride_of(jobs.size());
+  for (std::size_t k = 0; k < jobs.size(); ++k) stride_of[k] = screen_stride(s, first_stride[k]);
+  const std::vector<CostBreakdown> costs =
+      run_by_stride(ctx, pass, stride_of, coarse, points_estimate, result);
 
   std::vector<std::vector<std::size_t>> of_job(jobs.size());
   for (std::size_t i = 0; i < coarse.size(); ++i) of_job[std::size_t(coarse[i].label - 1)].push_back(i);
   std::vector<char> keep(coarse.size(), 0);
   for (std::vector<std::size_t>& idx : of_job) {
     if (idx.empty()) continue;
-    const int min_points =
-        min_points_at(s, screen_stride(s, first_stride[std::size_t(coarse[idx[0]].label - 1)]));
+    const int min_points = min_points_at(s, stride_of[std::size_t(coarse[idx[0]].label - 1)]);
     auto rank = [&](std::size_t i) {
       return std::make_pair(costs[i].rendered_points < min_points, costs[i].total);
     };
@@ -165,28 +177,12 @@ std::vector<CostBreakdown> first_pass(const Context<Backend>& ctx, const std::ve
                                       std::vector<Hypothesis>& hyps,
                                       const std::vector<std::size_t>& points_estimate, SixDofResult& result) {
   const SixDofSettings& s = ctx.shared.settings;
-  Context<Backend> first_ctx = ctx;  // against the first pass' coarser targets
-  first_ctx.registration = ctx.first_pass_registration;
-  std::vector<CostBreakdown> first_costs;
-  std::vector<Hypothesis> refined;  // after the first pass (without the warm-up's duplicates), in order
-  for (std::size_t begin = 0; begin < hyps.size();) {
-    const int stride = first_stride[std::size_t(hyps[begin].label - 1)];
-    std::size_t end = begin;
-    while (end < hyps.size() && first_stride[std::size_t(hyps[end].label - 1)] == stride) ++end;
-    Pass first;
-    first.stride = first.score_stride = stride;
-    first.gicp = s.gicp;
-    first.cost = &s.first_pass_cost;
-    first.dedupe_after_warmup = s.dedupe_after_warmup;
-    first.first = true;
-    std::vector<Hypothesis> run(hyps.begin() + std::ptrdiff_t(begin), hyps.begin() + std::ptrdiff_t(end));
-    const auto c = run_chunks(first_ctx, first, run, points_estimate, result);
-    refined.insert(refined.end(), run.begin(), run.end());
-    first_costs.insert(first_costs.end(), c.begin(), c.end());
-    begin = end;
-  }
-  hyps = std::move(refined);
-  return first_costs;
+  Pass first;
+  first.gicp = s.gicp;
+  first.cost = &s.first_pass_cost;
+  first.dedupe_after_warmup = s.dedupe_after_warmup;
+  first.first = true;
+  return run_by_stride(ctx, first, first_stride, hyps, points_estimate, result);
 }
 
 }  // namespace sixdof_detail
