@@ -7,6 +7,7 @@
 #include <array>
 #include <cmath>
 #include <functional>
+#include <utility>
 #include <vector>
 
 #include "perch2/search/local_search.hpp"
@@ -129,6 +130,34 @@ TEST_CASE("search_turns: a finer climb than the fine sweep re-measures its start
   CHECK(at_climb <= s.starts * (1 + 2 * s.levels * s.moves_per_level));
   s.climb_stride = -1;
   CHECK_THROWS_WITH_AS(validate(s, "turns"), doctest::Contains("turns.climb_stride"), InvalidInput);
+}
+
+TEST_CASE("search_turns: climbed_starts climbs only the best starts at the climb's stride") {
+  const float truth = 0.4f;
+  TurnSearchSettings s;
+  s.climb_shift_m = 0.f;
+  s.sweep_stride = 8, s.fine_stride = 4, s.final_stride = 2, s.climb_stride = 1;
+  auto climbed = [&](int climbed_starts, std::vector<Pose>& poses) {
+    s.climbed_starts = climbed_starts;
+    Measure m{can_geometry, Print{}, truth};
+    search_turns(poses, 2, 0, kPixels, s, turn, shift, m);
+    const auto at_climb = std::count(m.strides.begin(), m.strides.end(), s.climb_stride);
+    const auto at_final = std::count(m.strides.begin(), m.strides.end(), s.final_stride);
+    return std::pair{at_climb, at_final};
+  };
+  std::vector<Pose> all{Pose{}}, best{Pose{}};
+  const auto [climb_all, final_all] = climbed(0, all);
+  const auto [climb_best, final_best] = climbed(1, best);
+  // Every start is measured at the climb's stride; one of them is climbed (one flat axis: two moves per
+  // step) and compared at final_stride beside the pose.
+  CHECK(climb_best <= s.starts + 2 * s.levels * s.moves_per_level);
+  CHECK(climb_best < climb_all);
+  CHECK(final_best == 2);
+  CHECK(final_all > final_best);
+  CHECK(std::abs(wrap(best[0].angle[0] - truth)) <= s.climb_step_rad / 2);
+  CHECK(best[0].angle[0] == all[0].angle[0]);  // the best start is the one that climbs to the truth
+  s.climbed_starts = -1;
+  CHECK_THROWS_WITH_AS(validate(s, "turns"), doctest::Contains("turns.climbed_starts"), InvalidInput);
 }
 
 TEST_CASE("search_turns: a box's half turn is taken only when its print agrees better") {

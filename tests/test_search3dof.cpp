@@ -244,13 +244,18 @@ TEST_CASE_TEMPLATE("the RGB-D search finds each can among same-shape, different-
   CHECK(r.hypotheses_kept == r.hypotheses_refined);
   // ICP brings many grid starts onto the same placement; those are scored once.
   CHECK(r.hypotheses_scored < r.hypotheses_refined);
-  // The chosen pose is the lowest-cost acceptable one among the scored hypotheses of its model.
+  // Selection chooses the lowest-cost acceptable pose among the scored hypotheses of its model (before the
+  // yaw search, which may trade a little of the cost for a label lined up better; then polished).
   REQUIRE(r.scored.size() == r.hypotheses_scored);
-  for (const auto& h : r.scored)
+  settings.yaw_search.enabled = false;
+  const TabletopResult selected =
+      TabletopEstimator<B>(can_models(), settings).estimate(frame, {{0, 1}, {1, 1}}, camera_pose());
+  const TabletopPose* red_selected = two_cans_found(selected);
+  for (const auto& h : selected.scored)
     if (h.model == 0 && h.cost.rendered_points >= settings.min_rendered_points &&
         h.cost.observed_in_volume >= settings.min_observed_in_volume &&
         h.cost.rendered_inliers >= settings.min_inlier_fraction * float(h.cost.rendered_points))
-      CHECK(h.cost.total >= red->cost.total);
+      CHECK(h.cost.total >= red_selected->cost.total);
   CHECK(r.timings.total > 0);
   // Poses are on the table: T_cam_obj = T_cam_world * T_world_obj, upright.
   CHECK((r.T_cam_world * red->T_world_obj).isApprox(red->T_cam_obj, 1e-4f));
@@ -714,8 +719,10 @@ TEST_CASE("selection charges a pose for the share of it that is hidden or out of
   if (xy_error(*seen, 0.1f, 0.05f) > xy_error(*behind, 0.1f, 0.05f)) std::swap(seen, behind);
   CHECK(xy_error(*seen, 0.1f, 0.05f) < 0.01f);
   CHECK(xy_error(*behind, -0.1f, 0.07f) < 0.01f);
-  // score = cost + hidden_point_weight * hidden share: nothing of the first is hidden, most of the second.
-  CHECK(seen->score == doctest::Approx(seen->cost.total).epsilon(1e-6));
+  // score = cost + hidden_point_weight * hidden share: nothing of the first is hidden (but a rim point or
+  // two behind its own readings, where its pose is a millimetre off), most of the second.
+  CHECK(seen->score >= seen->cost.total);
+  CHECK((seen->score - seen->cost.total) / s.hidden_point_weight < 0.02f);
   const float hidden_share = (behind->score - behind->cost.total) / s.hidden_point_weight;
   CHECK(hidden_share > 0.5f);
   CHECK(hidden_share < 0.8f);

@@ -233,6 +233,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(turns, TurnSearchSettings, fine_stride);
   PERCH2_RW(turns, TurnSearchSettings, climb_stride);
   PERCH2_RW(turns, TurnSearchSettings, starts);
+  PERCH2_RW(turns, TurnSearchSettings, climbed_starts);
   PERCH2_RW(turns, TurnSearchSettings, climb_step_rad);
   PERCH2_RW(turns, TurnSearchSettings, climb_shift_m);
   PERCH2_RW(turns, TurnSearchSettings, levels);

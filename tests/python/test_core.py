@@ -198,6 +198,9 @@ def test_settings_defaults_come_from_cpp_and_nested_settings_are_live():
     # the 3-DoF default: the fine sweep at stride 2, the climb at every pixel; the 6-DoF local search climbs at 2
     assert t.yaw_search.turns.fine_stride == 2 and t.yaw_search.turns.climb_stride == 1
     assert s.local.turns.fine_stride == 2 and s.local.turns.climb_stride == 0
+    # the 3-DoF search refines 64 points of a stride-6 render and climbs the yaw search's best two starts
+    assert t.render.stride == 6 and t.icp_max_points == 64 and t.yaw_search.turns.climbed_starts == 2
+    assert s.local.turns.sweep_turns == 24 and s.local.turns.climbed_starts == 0  # the 6-DoF sweep every 15 deg
     assert t.missing_depth_hides and t.second_look and t.second_look_margin_m == pytest.approx(0.01)
     assert t.polish_rounds == 2 and t.polish_stride == 1 and t.polish_max_distance_m == pytest.approx(0.01)
     assert perch2.TurnSearchSettings.geometry_tolerance.__doc__

@@ -21,8 +21,9 @@
 //   starts     the pose and its best turns by appearance at fine_stride (the fine sweep's, and the sweep's
 //              look-alikes about the other axes, e.g. a box's half turn), at most `starts - 1`, each more
 //              than two steps from the others about its axis; a pose with neither keeps its pose
-//   climb      each start turned about the flat axes by +-climb_step_rad, halving over `levels`, at
-//              climb_stride (0: fine_stride): a move is taken when it raises the appearance
+//   climb      the best climbed_starts starts (0: all) at climb_stride (0: fine_stride), each turned about
+//              the flat axes by +-climb_step_rad, halving over `levels`: a move is taken when it raises the
+//              appearance
 //   choose     the climbed starts compared at final_stride (fine print decides between look-alike sides):
 //              the best appearance among those whose geometry is within the tolerance of the pose's wins,
 //              if it beats the pose's own
@@ -72,6 +73,10 @@ struct TurnSearchSettings {
   /// to rank the turns, the climb's few renders decide between the best starts (re-measured at this stride).
   int climb_stride = 0;
   int starts = 4;  ///< the pose and at most starts - 1 of its best turns are climbed and compared (>= 1)
+  /// Of each pose's starts, only the best this many by appearance at the climb's stride are climbed and
+  /// compared (>= 0; 0 = all): the climb, at the finest stride but the final one, is most of the search's
+  /// time, and a start that the climb's own stride ranks low rarely climbs past the best.
+  int climbed_starts = 0;
   float climb_step_rad = 0.0109f;  ///< the climb's first turn, radians (> 0): half the fine sweep's step
   /// The climb also shifts each start by +-climb_shift_m along the caller's shift axes, halving with the
   /// turn (>= 0; 0 = turns only): a label's letters line up only within a pixel or two, and the geometry
@@ -95,6 +100,7 @@ inline void validate(const TurnSearchSettings& s, const std::string& who) {
   if (!(std::isfinite(s.geometry_tolerance) && s.geometry_tolerance >= 0))
     throw InvalidInput(who + ".geometry_tolerance", "must be finite and >= 0");
   if (s.starts < 1) throw InvalidInput(who + ".starts", "must be >= 1");
+  if (s.climbed_starts < 0) throw InvalidInput(who + ".climbed_starts", "must be >= 0 (0 = all starts)");
   if (!(std::isfinite(s.climb_step_rad) && s.climb_step_rad > 0))
     throw InvalidInput(who + ".climb_step_rad", "must be finite and > 0");
   if (!(std::isfinite(s.climb_shift_m) && s.climb_shift_m >= 0))
@@ -222,6 +228,19 @@ std::vector<TurnMeasure> search_turns(std::vector<P>& poses, int axes, int shift
     count(at.size());
     const std::vector<TurnSample> m = measure(at, climb_stride, false);
     for (std::size_t i = 0; i < starts.size(); ++i) starts[i].appearance = appearance(starts[i].pose, m[i]);
+  }
+  if (s.climbed_starts > 0) {  // per pose, its best starts at the climb's stride (the earlier on a tie)
+    auto ahead = [&](std::size_t j, std::size_t i) {
+      return starts[j].pose == starts[i].pose && (starts[j].appearance > starts[i].appearance ||
+                                                  (starts[j].appearance == starts[i].appearance && j < i));
+    };
+    std::vector<Start> kept;
+    for (std::size_t i = 0; i < starts.size(); ++i) {
+      int better = 0;
+      for (std::size_t j = 0; j < starts.size(); ++j) better += ahead(j, i);
+      if (better < s.climbed_starts) kept.push_back(starts[i]);
+    }
+    starts = std::move(kept);
   }
   float step = s.climb_step_rad, step_m = s.climb_shift_m;
   for (int level = 0; level < s.levels; ++level, step *= 0.5f, step_m *= 0.5f) {

@@ -81,10 +81,14 @@ struct YawSearchSettings {
   /// seed 2020 97.2 / 0.957 -> 97.4 / 0.964 at 1.09 -> 0.93 s per image, seed 77 96.0 / 0.932 -> 97.1 /
   /// 0.946 at 1.10 -> 0.92 s, seed 7070 (never tuned on) 98.1 / 0.971 -> 97.6 / 0.969 at 0.96 -> 0.79 s;
   /// the climb at stride 2 too lost 0.7-1.2 ADD(-S) on seeds 77 and 7070.
+  /// Only the best two starts (by appearance at stride 1) climb (turns.climbed_starts; with all four the
+  /// climb was half the yaw search's time): the same accuracy (see TabletopSettings::render for the
+  /// measurements), the yaw search 0.27 -> 0.20 s per image on bench_tabletop.
   TurnSearchSettings turns = [] {
     TurnSearchSettings t;
     t.fine_stride = 2;
     t.climb_stride = 1;
+    t.climbed_starts = 2;
     return t;
   }();
 };
@@ -111,8 +115,18 @@ struct TabletopSettings {
 
   // ---- observed cloud, rendering, refinement, cost
   ObservedCloudSettings observed{2};  ///< pixels of the frame used as observed points (stride 2)
-  RenderSettings render;              ///< renders before refinement (stride 4 by default)
-  int score_stride = 2;               ///< stride of the re-render that is scored (>= 1)
+  /// Renders before refinement: stride 6 (was 4; ICP aligns icp_max_points of them). With icp_max_points
+  /// 128 -> 64 and the yaw search's climbed_starts 2 (thrust_omp, Intel Xeon VM, ADD(-S) AUC / BOP AR
+  /// without VSD, s per image): held-out seed 123 (80 images, 430 targets) 97.6 / 0.973 -> 97.8 / 0.975 at
+  /// 1.03 -> 0.74 s; bench_tabletop (seed 2020) 97.4 / 0.964 -> 97.5 / 0.973 at 0.98 -> 0.65 s; seed 77
+  /// 97.1 / 0.946 -> 97.0 / 0.940 at 0.94 -> 0.65 s; seed 7070 97.6 / 0.969 -> 97.4 / 0.965 at 0.78 ->
+  /// 0.55 s. Stride 8 lost 1.1 on bench_tabletop.
+  RenderSettings render = [] {
+    RenderSettings r;
+    r.stride = 6;
+    return r;
+  }();
+  int score_stride = 2;  ///< stride of the re-render that is scored (>= 1)
   /// Coarse-to-fine scoring (parallel modes): every refined hypothesis is first scored at this stride;
   /// per model, the best places (by that coarse cost) are re-rendered and scored at score_stride, and only
   /// those are selected from. 0 (or <= score_stride) scores everything at score_stride.
@@ -140,8 +154,9 @@ struct TabletopSettings {
   /// ICP aligns at most this many of a hypothesis' rendered points (evenly spread over its render; 0 =
   /// all; BF-ICP always uses all, its fitness is over every point): three parameters need far fewer than
   /// a large object shows, and refinement then no longer grows with the object's size in the image. On
-  /// bench_tabletop's 30 scenes 128 gave the same poses within 1 cm as 192 in 13% less CPU time.
-  int icp_max_points = 128;
+  /// bench_tabletop's 30 scenes 128 gave the same poses within 1 cm as 192 in 13% less CPU time; 64 since
+  /// 2026-12-07 (see render). 96 was no more accurate than 64.
+  int icp_max_points = 64;
   /// After refinement, hypotheses whose ICP found a correspondence (within the ICP cap) for less than this
   /// fraction of its points are dropped before scoring: they lie on bare table or beside the objects, and a
   /// pose needs min_inlier_fraction of its points within delta (< the cap) to be accepted anyway. 0 keeps
