@@ -34,7 +34,6 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
-#include <unordered_map>
 #include <vector>
 
 #include "perch2/color/ciede2000.hpp"
@@ -77,10 +76,21 @@ inline const std::array<float, 256>& log_linear() {
   return table;
 }
 
+/// exp of log_linear(), in double: the luminance's terms, looked up instead of computed per colour.
+inline const std::array<double, 256>& exp_log_linear() {
+  static const std::array<double, 256> table = [] {
+    std::array<double, 256> t{};
+    for (int c = 0; c < 256; ++c) t[std::size_t(c)] = std::exp(double(log_linear()[std::size_t(c)]));
+    return t;
+  }();
+  return table;
+}
+
 inline std::array<float, kFeatures> features(Rgb8 c) {
   const std::array<float, 256>& lg = log_linear();
+  const std::array<double, 256>& ex = exp_log_linear();
   const double r = lg[c.r], g = lg[c.g], b = lg[c.b];
-  const double y = std::log(0.2126729 * std::exp(r) + 0.7151522 * std::exp(g) + 0.0721750 * std::exp(b));
+  const double y = std::log(0.2126729 * ex[c.r] + 0.7151522 * ex[c.g] + 0.0721750 * ex[c.b]);
   return {float(r - g), float(b - g), float(y)};
 }
 
@@ -99,8 +109,12 @@ class PrintVariation {
 
   /// Adds one member's pairs (its rendered features).
   void add(const AppearanceSamples& member) {
+    if (member.empty()) return;
+    Box b = box_;
+    for (const AppearanceSample& a : member) b = b.with(row(a.pixel), col(a.pixel));
+    if (!(b == box_)) relayout(b);
     for (const AppearanceSample& a : member) {
-      Moments& m = cells_[key(a.pixel)];
+      Moments& m = cells_[index(a.pixel)];
       for (int k = 0; k < appearance_detail::kFeatures; ++k)
         m.sum[k] += a.rendered[k], m.squares[k] += double(a.rendered[k]) * a.rendered[k];
       m.n += 1;
@@ -109,9 +123,10 @@ class PrintVariation {
 
   /// v / (v + kVariationScale) at the pixel's cell; 0 where no member was seen.
   double weight(std::int32_t pixel) const {
-    const auto it = cells_.find(key(pixel));
-    if (it == cells_.end()) return 0;
-    const Moments& m = it->second;
+    const std::int64_t r = row(pixel), c = col(pixel);
+    if (!box_.holds(r, c)) return 0;
+    const Moments& m = cells_[box_.index(r, c)];
+    if (!(m.n > 0)) return 0;
     double v = 0;
     for (int k = 0; k < appearance_detail::kFeatures; ++k)
       v += std::max(0.0, m.squares[k] / m.n - (m.sum[k] / m.n) * (m.sum[k] / m.n));
@@ -123,12 +138,33 @@ class PrintVariation {
     std::array<double, appearance_detail::kFeatures> sum{}, squares{};
     double n = 0;
   };
-  std::int64_t key(std::int32_t pixel) const {
-    const std::int64_t u = pixel % width_, v = pixel / width_;
-    return (v / cell_) * (std::int64_t(width_) / cell_ + 1) + u / cell_;
+  /// The cells held: rows [r0, r1) x columns [c0, c1), row-major (a dense grid over the members' pixels, not
+  /// the whole frame).
+  struct Box {
+    std::int64_t r0 = 0, r1 = 0, c0 = 0, c1 = 0;
+    bool empty() const { return r1 <= r0 || c1 <= c0; }
+    bool holds(std::int64_t r, std::int64_t c) const { return r >= r0 && r < r1 && c >= c0 && c < c1; }
+    std::size_t index(std::int64_t r, std::int64_t c) const {
+      return std::size_t((r - r0) * (c1 - c0) + c - c0);
+    }
+    Box with(std::int64_t r, std::int64_t c) const {
+      if (empty()) return {r, r + 1, c, c + 1};
+      return {std::min(r0, r), std::max(r1, r + 1), std::min(c0, c), std::max(c1, c + 1)};
+    }
+    bool operator==(const Box& o) const { return r0 == o.r0 && r1 == o.r1 && c0 == o.c0 && c1 == o.c1; }
+  };
+  std::int64_t row(std::int32_t pixel) const { return (pixel / width_) / cell_; }
+  std::int64_t col(std::int32_t pixel) const { return (pixel % width_) / cell_; }
+  std::size_t index(std::int32_t pixel) const { return box_.index(row(pixel), col(pixel)); }
+  void relayout(const Box& b) {
+    std::vector<Moments> cells(std::size_t((b.r1 - b.r0) * (b.c1 - b.c0)));
+    for (std::int64_t r = box_.r0; r < box_.r1; ++r)
+      for (std::int64_t c = box_.c0; c < box_.c1; ++c) cells[b.index(r, c)] = cells_[box_.index(r, c)];
+    cells_ = std::move(cells), box_ = b;
   }
   int width_, cell_;
-  std::unordered_map<std::int64_t, Moments> cells_;
+  Box box_;
+  std::vector<Moments> cells_;
 };
 
 /// The appearance score of one hypothesis' pairs (see the file comment), each weighted by `variation` if
@@ -172,15 +208,22 @@ inline std::vector<AppearanceSamples> appearance_samples(const CloudBatch& rende
   if (frame.rgb.empty()) throw InvalidInput("appearance: frame", "has no colour image");
   if (!(depth_tolerance_m > 0)) throw InvalidInput("appearance: depth_tolerance_m", "must be > 0");
   const std::int64_t pixels = std::int64_t(frame.depth_m.data.size());
+  if (std::any_of(rendered.pixel.begin(), rendered.pixel.end(), [&](std::int32_t p) { return p >= pixels; }))
+    throw InvalidInput("appearance: rendered clouds", "a pixel lies outside the frame");
   std::vector<AppearanceSamples> out(rendered.num_clouds());
-  for (std::size_t c = 0; c < rendered.num_clouds(); ++c)
-    for (auto i = std::size_t(rendered.offsets[c]); i < std::size_t(rendered.offsets[c + 1]); ++i) {
+  // Clouds in parallel (a turn search compares hundreds per call; the features take logs).
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, 8)
+#endif
+  for (std::int64_t c = 0; c < std::int64_t(rendered.num_clouds()); ++c)
+    for (auto i = std::size_t(rendered.offsets[std::size_t(c)]);
+         i < std::size_t(rendered.offsets[std::size_t(c) + 1]); ++i) {
       const std::int32_t p = rendered.pixel[i];
       if (p < 0) continue;
-      if (p >= pixels) throw InvalidInput("appearance: rendered clouds", "a pixel lies outside the frame");
       const float d = frame.depth_m.data[std::size_t(p)];
       if (!(d > 0) || std::abs(d - rendered.z[i]) > depth_tolerance_m) continue;
-      out[c].push_back({p, features(unpack_rgb(rendered.rgb[i])), features(frame.rgb.data[std::size_t(p)])});
+      out[std::size_t(c)].push_back(
+          {p, features(unpack_rgb(rendered.rgb[i])), features(frame.rgb.data[std::size_t(p)])});
     }
   return out;
 }
