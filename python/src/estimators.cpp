@@ -490,6 +490,13 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scr, ScreenSettings, in_scene);
   PERCH2_RW(scr, ScreenSettings, hidden);
 
+  nb::class_<CoarseMeshSettings> cms(m, "CoarseMeshSettings", doc("CoarseMeshSettings"));
+  cms.def(nb::init<>());
+  PERCH2_RW(cms, CoarseMeshSettings, min_stride);
+  PERCH2_RW(cms, CoarseMeshSettings, min_triangles);
+  PERCH2_RW(cms, CoarseMeshSettings, cell_fraction);
+  PERCH2_RW(cms, CoarseMeshSettings, texture_factor);
+
   nb::class_<ModelSymmetries> sym(m, "ModelSymmetries", doc("ModelSymmetries"));
   sym.def(nb::init<>())
       .def(
@@ -569,6 +576,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(ss, SixDofSettings, render);
   PERCH2_RW(ss, SixDofSettings, first_pass_min_points);
   PERCH2_RW(ss, SixDofSettings, screen);
+  PERCH2_RW(ss, SixDofSettings, coarse_mesh);
   PERCH2_RW(ss, SixDofSettings, first_pass_target_stride);
   PERCH2_RW(ss, SixDofSettings, keep_per_instance);
   PERCH2_RW(ss, SixDofSettings, distinct_translation_m);

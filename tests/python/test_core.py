@@ -305,6 +305,15 @@ def test_estimate_scene_objects_and_bad_requests():
         depth, rgb, K, [(0, 1)])
     assert len(rs.poses) == len(r.poses) and rs.missing == r.missing
     assert r.search.proposals_screened_out == 0 and r.search.timings.screen == 0.0
+    # the coarse meshes: defaults, and bad values refused by name when the estimator is built
+    c = perch2.SixDofSettings().coarse_mesh
+    assert (c.min_stride, c.min_triangles, c.texture_factor) == (8, 8000, 2)
+    assert c.cell_fraction == pytest.approx(0.025) and perch2.CoarseMeshSettings.cell_fraction.__doc__
+    for field, value in (("cell_fraction", 0.0), ("texture_factor", 0), ("min_stride", -1)):
+        settings = perch2.SixDofSettings()
+        setattr(settings.coarse_mesh, field, value)
+        with pytest.raises(perch2.InvalidInput, match="coarse_mesh." + field):
+            perch2.SixDofEstimator([perch2.Mesh(v, f)], backend="cpu", settings=settings)
 
 
 def test_detect_settings_and_what_a_detection_reports():

@@ -12,6 +12,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <optional>
 #include <utility>
 #include <vector>
 
@@ -23,6 +24,7 @@
 #include "perch2/cost/cost.hpp"
 #include "perch2/registration/surface_fit.hpp"
 #include "perch2/render/render.hpp"
+#include "perch2/render/simplify.hpp"
 #include "perch2/search/sixdof/result.hpp"
 #include "perch2/search/sixdof/settings.hpp"
 
@@ -75,6 +77,27 @@ inline std::vector<Mesh> meshes_of(const std::vector<SixDofModel>& models) {
   return out;
 }
 
+/// The meshes of the coarse renders (CoarseMeshSettings): each model's simplified copy if it has at least
+/// min_triangles; none if no model has (the full meshes are then rendered at every stride).
+inline std::vector<Mesh> coarse_meshes_of(const std::vector<SixDofModel>& models,
+                                          const CoarseMeshSettings& s) {
+  if (s.min_stride < 0)
+    throw InvalidInput("SixDofSettings::coarse_mesh.min_stride", "must be >= 0 (0 = never)");
+  if (!(std::isfinite(s.cell_fraction) && s.cell_fraction > 0.f))
+    throw InvalidInput("SixDofSettings::coarse_mesh.cell_fraction", "must be finite and > 0");
+  if (s.texture_factor < 1) throw InvalidInput("SixDofSettings::coarse_mesh.texture_factor", "must be >= 1");
+  if (s.min_stride == 0 || std::none_of(models.begin(), models.end(), [&](const SixDofModel& m) {
+        return m.mesh.triangles.size() >= s.min_triangles;
+      }))
+    return {};
+  std::vector<Mesh> out;
+  for (const auto& m : models)
+    out.push_back(m.mesh.triangles.size() >= s.min_triangles
+                      ? simplified(m.mesh, s.cell_fraction * model_diameter_bound(m.mesh), s.texture_factor)
+                      : m.mesh);
+  return out;
+}
+
 /// What every pass of one estimator shares: the models and settings, what the passes need to know of each
 /// model, the renderer and the surface fit (the models uploaded to the backend once). Validates the models
 /// (InvalidInput on no models or a bad mesh).
@@ -85,6 +108,8 @@ struct Shared {
         settings(std::move(settings_in)),
         renderer(meshes_of(models)),
         surface_fit(meshes_of(models), settings.fit_sample_spacing_m) {
+    if (std::vector<Mesh> coarse = coarse_meshes_of(models, settings.coarse_mesh); !coarse.empty())
+      coarse_renderer.emplace(std::move(coarse));
     for (const auto& m : models) {
       diameter.push_back(model_diameter_bound(m.mesh));
       Eigen::Vector3f e = m.mesh.bounds().sizes();
@@ -98,7 +123,13 @@ struct Shared {
   std::vector<SixDofModel> models;
   SixDofSettings settings;
   typename Backend::Renderer renderer;
+  /// The simplified meshes' renderer for strides >= settings.coarse_mesh.min_stride (none: renderer).
+  std::optional<typename Backend::Renderer> coarse_renderer;
   SurfaceFit<Backend> surface_fit;
+  const typename Backend::Renderer& renderer_at(int stride) const {
+    const int min = settings.coarse_mesh.min_stride;
+    return coarse_renderer && min > 0 && stride >= min ? *coarse_renderer : renderer;
+  }
   std::vector<float> diameter;  ///< per model, an upper bound (2 x the largest vertex distance), metres
   std::vector<float> size_m;    ///< per model, its bounding box's diagonal, metres
   /// per model, its bounding box's smallest and largest face, m^2 (the scene search's size rules)

@@ -26,7 +26,7 @@ CloudBatch render(const Context<Backend>& ctx, const std::vector<Hypothesis>& h,
   rs.stride = stride;
   std::vector<Hypothesis> as_segments = h;
   for (auto& x : as_segments) x.label = ctx.label_of(x);
-  CloudBatch out = ctx.shared.renderer.render(as_segments, ctx.frame.camera, rs, &ctx.occ);
+  CloudBatch out = ctx.shared.renderer_at(stride).render(as_segments, ctx.frame.camera, rs, &ctx.occ);
   result.timings.render += seconds_since(t);
   return out;
 }

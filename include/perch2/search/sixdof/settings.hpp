@@ -192,6 +192,21 @@ struct ScreenSettings {
   bool hidden = false;
 };
 
+/// The coarse renders of a large mesh (the screen's and the first pass' strides) use a simplified copy
+/// (perch2/render/simplify.hpp: vertices clustered on a grid of cell_fraction x the model's diameter): a
+/// render's cost is mostly its mesh's triangles whatever the stride, and at stride 8 a sample covers a
+/// centimetre of an object a metre away. On the 29 real LINEMOD-cat frames (a 31,468-triangle scan;
+/// thrust_omp, Intel Xeon VM, s per frame): gt masks 0.157 -> 0.127 s, degraded masks 0.188 -> 0.160 s, the
+/// same poses (ADD 97.2 / 96.9); without masks 1.41 -> 1.18 s, ADD-S AUC 98.3 -> 98.2, ADD 96.7 both, AR (no
+/// VSD) 0.993 -> 0.990. The generated sets' models (at most 3,456 triangles) are rendered as they are. Read
+/// when the estimator is built, but min_stride (0 turns the copy off at any time).
+struct CoarseMeshSettings {
+  int min_stride = 8;                ///< renders at this stride or coarser use the copy (0 = never)
+  std::size_t min_triangles = 8000;  ///< meshes with fewer triangles are rendered as they are
+  float cell_fraction = 0.025f;      ///< the clustering cell, a fraction of the model's diameter (> 0)
+  int texture_factor = 2;            ///< the copy's texture, shrunk this much per axis (>= 1)
+};
+
 struct SixDofSettings {
   ProposalSettings proposals;  ///< 40 viewpoints x 4 in-plane x <= 3 depths every 0.02 m (proposals.hpp)
   ObservedCloudSettings observed{2};  ///< observed points (GICP targets, J_o) on this stride grid
@@ -214,7 +229,8 @@ struct SixDofSettings {
   /// (seed 2020) and 91.7 / 0.885 both at 4.33 -> 3.84 s (seed 4040); the real LINEMOD-cat frames AR 0.958
   /// both at 0.27 -> 0.17 s (gt masks), 0.947 -> 0.948 at 0.31 -> 0.20 s (degraded masks).
   int first_pass_min_points = 24;
-  ScreenSettings screen;  ///< the cheaper pass before the first one (see ScreenSettings)
+  ScreenSettings screen;           ///< the cheaper pass before the first one (see ScreenSettings)
+  CoarseMeshSettings coarse_mesh;  ///< simplified meshes for coarse renders (see CoarseMeshSettings)
   /// The first pass' GICP targets (and its ICP warm-up's): each segment's observed points on this coarser
   /// pixel grid (>= 1; <= observed.stride = all of them). A segment that would keep fewer than
   /// kFirstPassMinTargets keeps all. The first pass only has to bring a proposal into its basin, and GICP's

@@ -28,6 +28,8 @@ inline void validate_settings(const SixDofSettings& s, const RgbdFrame& frame) {
   if (s.screen.stride != 0 && s.screen.stride <= s.render.stride)
     throw InvalidInput("SixDofSettings::screen.stride",
                        "must be 0 (no screen) or > render.stride, got " + std::to_string(s.screen.stride));
+  if (s.coarse_mesh.min_stride < 0)
+    throw InvalidInput("SixDofSettings::coarse_mesh.min_stride", "must be >= 0 (0 = never)");
   if (s.screen.icp_iterations < 1)
     throw InvalidInput("SixDofSettings::screen.icp_iterations", "must be >= 1");
   if (!(s.screen.keep_fraction > 0.f && s.screen.keep_fraction <= 1.f))
