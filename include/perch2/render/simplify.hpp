@@ -82,31 +82,22 @@ inline Mesh simplified(const Mesh& m, float cell_m, int texture_factor = 1) {
   Mesh out;
   out.name = m.name;
   out.base_color = m.base_color;
-  for (std::size_t t = 0; t < m.triangles.size(); ++t) {
-    std::array<int, 3> c{cluster[std::size_t(m.triangles[t][0])], cluster[std::size_t(m.triangles[t][1])],
-                         cluster[std::size_t(m.triangles[t][2])]};
-    if (c[0] == c[1] || c[1] == c[2] || c[0] == c[2]) continue;
-    out.triangles.emplace_back(c[0], c[1], c[2]);
-    if (m.has_texture())
-      for (int k = 0; k < 3; ++k) out.corner_uvs.push_back(m.corner_uvs[3 * t + std::size_t(k)]);
-  }
-  // One triangle per three cells and orientation (the first), as a cyclic rotation starting at the least.
+  // Triangles spanning three cells, one per three cells and orientation (the first; keyed by the cyclic
+  // rotation that starts at the least cell).
   std::set<std::array<int, 3>> seen;
-  std::size_t kept = 0;
-  for (std::size_t t = 0; t < out.triangles.size(); ++t) {
-    Eigen::Vector3i c = out.triangles[t];
-    while (c[0] > c[1] || c[0] > c[2]) c = Eigen::Vector3i(c[1], c[2], c[0]);
-    if (!seen.insert({c[0], c[1], c[2]}).second) continue;
-    out.triangles[kept] = out.triangles[t];
+  for (std::size_t t = 0; t < m.triangles.size(); ++t) {
+    Eigen::Vector3i c(cluster[std::size_t(m.triangles[t][0])], cluster[std::size_t(m.triangles[t][1])],
+                      cluster[std::size_t(m.triangles[t][2])]);
+    if (c[0] == c[1] || c[1] == c[2] || c[0] == c[2]) continue;
+    Eigen::Vector3i k = c;
+    while (k[0] > k[1] || k[0] > k[2]) k = Eigen::Vector3i(k[1], k[2], k[0]);
+    if (!seen.insert({k[0], k[1], k[2]}).second) continue;
+    out.triangles.push_back(c);
     if (m.has_texture())
-      for (int j = 0; j < 3; ++j)
-        out.corner_uvs[3 * kept + std::size_t(j)] = out.corner_uvs[3 * t + std::size_t(j)];
-    ++kept;
+      for (int j = 0; j < 3; ++j) out.corner_uvs.push_back(m.corner_uvs[3 * t + std::size_t(j)]);
   }
-  if (kept == 0) return m;
-  out.triangles.resize(kept);
-  if (m.has_texture())
-    out.corner_uvs.resize(3 * kept), out.texture = shrunk_texture(m.texture, texture_factor);
+  if (out.triangles.empty()) return m;
+  if (m.has_texture()) out.texture = shrunk_texture(m.texture, texture_factor);
   // Only the clusters the triangles use, renumbered in order.
   std::vector<int> index(sum.size(), -1);
   for (Eigen::Vector3i& t : out.triangles)
