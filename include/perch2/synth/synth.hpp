@@ -7,3 +7,4 @@
 #include "perch2/synth/preview.hpp"
 #include "perch2/synth/scene.hpp"
 #include "perch2/synth/sensor.hpp"
+#include "perch2/synth/video.hpp"

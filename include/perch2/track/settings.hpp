@@ -1,0 +1,174 @@
+// Tracking's public types: the settings of the per-frame update and of the lost rule, the state of each
+// tracked object, and what update() returns.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "perch2/core/error.hpp"
+#include "perch2/core/pose.hpp"
+#include "perch2/cost/cost.hpp"
+#include "perch2/registration/registration.hpp"
+
+namespace perch2 {
+
+/// tracking: the pose explains the frame; lost: it does not (hidden, out of view, or the object moved
+/// away), the pose is a prediction and must not be acted on; recovered: found again this frame after
+/// being lost (tracking from the next frame on).
+enum class TrackState : std::uint8_t { Tracking, Lost, Recovered };
+
+inline const char* to_string(TrackState s) {
+  return s == TrackState::Tracking ? "tracking" : s == TrackState::Lost ? "lost" : "recovered";
+}
+
+/// Where tracking of one object starts: a model and its pose in the start frame (from any global search,
+/// or given).
+struct TrackStart {
+  int model = 0;
+  Pose T_cam_obj = Pose::Identity();
+};
+
+/// One refinement round of the update: the objects rendered at their current poses, the frame's readings
+/// around them assigned to the nearest silhouette, GICP of each object onto its readings.
+struct TrackRound {
+  /// Readings up to this many pixels outside an object's predicted silhouette are its candidates (the
+  /// prediction's error in the image), pixels.
+  int margin_px = 24;
+  /// Readings farther than this in depth from the object's rendered depth (at their cell; in the margin at
+  /// the nearest cell of its silhouette) are not its own (an occluder in front, the table or the room
+  /// behind), metres.
+  float depth_gate_m = 0.04f;
+  GicpSettings gicp;
+};
+
+/// Each frame, printed objects are turned about their flat axes by the appearance
+/// (perch2/track/turn_hold.hpp).
+struct TurnHoldSettings {
+  int levels = 2;           ///< turns by +-step_rad, then halved, ... (0: off), >= 0
+  float step_rad = 0.035f;  ///< the first level's turn, radians (2 deg): a frame's wander is smaller
+  int stride = 2;           ///< render stride of the comparison, >= 1
+  float min_gain = 0.005f;  ///< a turn must raise the appearance correlation by this to be taken, >= 0
+  float depth_tolerance_m = 0.01f;  ///< a rendered point is compared where the reading lies this near, metres
+};
+
+struct TrackSettings {
+  int render_stride = 4;    ///< renders of the tracked objects sample full-resolution pixels (s i, s j), >= 1
+  int observed_stride = 4;  ///< the frame's readings on this grid are the registration targets, >= 1
+  /// The rounds of each update: a wide one for the prediction's error, then a tight one.
+  std::vector<TrackRound> rounds = [] {
+    TrackRound wide;
+    wide.gicp.max_correspondence_distance_m = 0.03f;
+    wide.gicp.icp_warmup_iterations = 4;
+    wide.gicp.max_iterations = 10;
+    TrackRound tight;
+    tight.margin_px = 8;
+    tight.depth_gate_m = 0.015f;
+    tight.gicp.max_correspondence_distance_m = 0.01f;
+    tight.gicp.max_iterations = 10;
+    return std::vector<TrackRound>{wide, tight};
+  }();
+  TurnHoldSettings turn_hold;
+  /// The check after the rounds: readings of the final silhouette (this margin and gate) against the
+  /// render at the refined pose.
+  int check_margin_px = 8;
+  float check_depth_gate_m = 0.015f;
+  CostSettings cost = [] {
+    CostSettings c;
+    c.delta_m = 0.01f;
+    return c;
+  }();
+  float occlusion_margin_m = 0.01f;  ///< a reading nearer by more than this hides a rendered point, metres
+  /// Constant velocity in SE(3): the next pose is the last frame-to-frame motion applied again, scaled by
+  /// this (1: all of it; 0: no prediction). In [0, 1].
+  float velocity_factor = 1.f;
+  /// A lost object's pose keeps moving with its last velocity for this many frames (a camera moving on
+  /// while an occluder passes), then stays, frames >= 0.
+  int coast_frames = 30;
+  /// An object with fewer readings than this in its region is not refined this frame (coasts), >= 3.
+  int min_segment_points = 20;
+  // ---- the lost rule: a frame whose check fails any of these makes the object lost
+  float min_score = 0.6f;  ///< pose_score of the check (explained fraction of both clouds), in [0, 1]
+  /// The visible fraction (the part of the rendered silhouette, also outside the frame, in view and not
+  /// hidden by a nearer reading) below this times the object's usual one (its running mean while tracked):
+  /// an occluder passing in front, the object leaving the view. Relative, so that an object half hidden
+  /// behind another all along is tracked. In [0, 1].
+  float min_visible_ratio = 0.4f;
+  int min_visible_points = 15;  ///< fewer visible rendered points than this (render stride) is lost, >= 0
+  /// A lost object is recovered when its check passes with a score of at least this times its usual one
+  /// (the running mean while tracked; stricter than min_score alone: it was found from a prediction, not
+  /// followed), in [0, 1].
+  float recover_ratio = 0.9f;
+};
+
+/// One tracked object after a frame.
+struct TrackedObject {
+  int object = 0;  ///< index in the order of start()'s starts
+  int model = 0;
+  Pose T_cam_obj = Pose::Identity();
+  TrackState state = TrackState::Tracking;
+  /// pose_score of the check: the explained fraction of its rendered points and its readings, in [0, 1]
+  /// (0 when lost without readings).
+  float score = 0;
+  float visible_fraction = 0;  ///< see TrackSettings::min_visible_ratio
+  int visible_points = 0;      ///< rendered points in view and not hidden (render stride)
+  int segment_points = 0;      ///< readings assigned to it in the check
+  int frames_lost = 0;         ///< consecutive frames lost (0 while tracking)
+  CostBreakdown cost;          ///< the check's cost
+};
+
+struct TrackTimings {  ///< seconds, wall clock, of one frame
+  double predict = 0, render = 0, region = 0, refine = 0, turn_hold = 0, check = 0, total = 0;
+};
+
+struct TrackResult {
+  std::vector<TrackedObject> objects;  ///< in start() order
+  TrackTimings timings;
+  int frame = 0;  ///< frames since start() (start() itself is frame 0)
+};
+
+/// InvalidInput naming the field.
+inline void validate(const TrackSettings& s) {
+  auto positive = [](float x) { return std::isfinite(x) && x > 0.f; };
+  auto fraction = [](float x) { return x >= 0.f && x <= 1.f; };
+  if (s.render_stride < 1) throw InvalidInput("TrackSettings::render_stride", "must be >= 1");
+  if (s.observed_stride < 1) throw InvalidInput("TrackSettings::observed_stride", "must be >= 1");
+  if (s.rounds.empty()) throw InvalidInput("TrackSettings::rounds", "needs at least one round");
+  for (std::size_t r = 0; r < s.rounds.size(); ++r) {
+    const std::string who = "TrackSettings::rounds[" + std::to_string(r) + "]";
+    if (s.rounds[r].margin_px < 0) throw InvalidInput(who + ".margin_px", "must be >= 0");
+    if (!positive(s.rounds[r].depth_gate_m))
+      throw InvalidInput(who + ".depth_gate_m", "must be finite and > 0");
+    try {
+      perch2::validate(s.rounds[r].gicp);
+    } catch (const InvalidInput& e) {
+      throw InvalidInput(who + ".gicp", e.what());
+    }
+  }
+  if (s.turn_hold.levels < 0) throw InvalidInput("TrackSettings::turn_hold.levels", "must be >= 0");
+  if (!positive(s.turn_hold.step_rad))
+    throw InvalidInput("TrackSettings::turn_hold.step_rad", "must be finite and > 0");
+  if (s.turn_hold.stride < 1) throw InvalidInput("TrackSettings::turn_hold.stride", "must be >= 1");
+  if (!(std::isfinite(s.turn_hold.min_gain) && s.turn_hold.min_gain >= 0.f))
+    throw InvalidInput("TrackSettings::turn_hold.min_gain", "must be finite and >= 0");
+  if (!positive(s.turn_hold.depth_tolerance_m))
+    throw InvalidInput("TrackSettings::turn_hold.depth_tolerance_m", "must be finite and > 0");
+  if (s.check_margin_px < 0) throw InvalidInput("TrackSettings::check_margin_px", "must be >= 0");
+  if (!positive(s.check_depth_gate_m))
+    throw InvalidInput("TrackSettings::check_depth_gate_m", "must be finite and > 0");
+  if (!positive(s.cost.delta_m)) throw InvalidInput("TrackSettings::cost.delta_m", "must be finite and > 0");
+  if (!(std::isfinite(s.occlusion_margin_m) && s.occlusion_margin_m >= 0.f))
+    throw InvalidInput("TrackSettings::occlusion_margin_m", "must be finite and >= 0");
+  if (!fraction(s.velocity_factor)) throw InvalidInput("TrackSettings::velocity_factor", "must be in [0, 1]");
+  if (s.coast_frames < 0) throw InvalidInput("TrackSettings::coast_frames", "must be >= 0");
+  if (s.min_segment_points < 3) throw InvalidInput("TrackSettings::min_segment_points", "must be >= 3");
+  if (!fraction(s.min_score)) throw InvalidInput("TrackSettings::min_score", "must be in [0, 1]");
+  if (!fraction(s.min_visible_ratio))
+    throw InvalidInput("TrackSettings::min_visible_ratio", "must be in [0, 1]");
+  if (s.min_visible_points < 0) throw InvalidInput("TrackSettings::min_visible_points", "must be >= 0");
+  if (!fraction(s.recover_ratio)) throw InvalidInput("TrackSettings::recover_ratio", "must be in [0, 1]");
+}
+
+}  // namespace perch2

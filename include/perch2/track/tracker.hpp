@@ -1,0 +1,367 @@
+// Pose tracking over an RGB-D stream: the poses of known objects frame after frame, started by any of the
+// global searches (or given poses), with a state per object that says when a pose must not be trusted.
+//
+//   perch2::Tracker<perch2::cuda::Backend> tracker({{mesh, symmetries}, ...});
+//   tracker.start(frame0, perch2::track_starts(estimator.estimate_scene(frame0, objects)));
+//   for (const RgbdFrame& f : stream)
+//     for (const perch2::TrackedObject& o : tracker.update(f).objects)
+//       if (o.state != perch2::TrackState::Lost) use(o.object, o.T_cam_obj, o.score);
+//
+// One update, every object at once (timed per stage in TrackResult::timings):
+//   predict  constant velocity in SE(3): the last frame-to-frame motion (camera frame) applied again
+//   rounds   (TrackSettings::rounds; a wide one for the prediction's error, then a tight one) render the
+//            objects together at their poses on the render stride grid, assign the frame's readings around
+//            them to the nearest silhouette within a depth gate (perch2/track/region.hpp; only cells near
+//            the objects are visited), hide each render behind readings that are not its own (an
+//            occluder, another object in front), and GICP each object's visible points onto its readings
+//   check    rendered at the refined poses, readings assigned tightly, the RGB-D cost: score = the
+//            explained fraction of both clouds (the 6-DoF search's pose_score), visible fraction = the
+//            part of the silhouette (also outside the frame) in view and not hidden
+//   state    a check below min_score or min_visible_fraction makes the object lost: its pose coasts
+//            with its last velocity (coast_frames), is refined from there every frame and is recovered
+//            when a check passes recover_ratio of its usual score. A lost pose is a prediction, never a
+//            confident answer.
+// The work per frame is bounded by the tracked objects' regions, independent of the catalogue.
+#pragma once
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "perch2/core/error.hpp"
+#include "perch2/core/image.hpp"
+#include "perch2/core/pose.hpp"
+#include "perch2/cost/cost.hpp"
+#include "perch2/render/render.hpp"
+#include "perch2/search/sixdof/result.hpp"
+#include "perch2/search/sixdof/select.hpp"
+#include "perch2/search/sixdof/settings.hpp"
+#include "perch2/track/region.hpp"
+#include "perch2/track/settings.hpp"
+#include "perch2/track/turn_hold.hpp"
+
+namespace perch2 {
+
+/// Tracking starts from a search's found poses (SixDofEstimator::estimate or estimate_scene or detect).
+inline std::vector<TrackStart> track_starts(const std::vector<SixDofPose>& poses) {
+  std::vector<TrackStart> out;
+  for (const SixDofPose& p : poses)
+    if (p.found) out.push_back({p.model, p.T_cam_obj});
+  return out;
+}
+inline std::vector<TrackStart> track_starts(const SixDofResult& r) {
+  return track_starts(r.poses);
+}
+inline std::vector<TrackStart> track_starts(const SixDofSceneResult& r) {
+  return track_starts(r.poses);
+}
+
+namespace track_detail {
+
+using Clock = std::chrono::steady_clock;
+inline double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+/// The camera-frame motion that took T_from to T_to (T_to = motion * T_from).
+inline Pose motion(const Pose& T_from, const Pose& T_to) {
+  return T_to * T_from.inverse();
+}
+
+/// `m` scaled along its rotation angle and translation by f in [0, 1] (f = 1: m itself).
+inline Pose scaled(const Pose& m, float f) {
+  if (f == 1.f) return m;
+  const Eigen::AngleAxisf aa(m.linear());
+  Pose out = Pose::Identity();
+  out.linear() = Eigen::AngleAxisf(aa.angle() * f, aa.axis()).toRotationMatrix();
+  out.translation() = f * m.translation();
+  return out;
+}
+
+inline Pose rigid(Pose T) {
+  T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();
+  return T;
+}
+
+inline bool same_camera(const Intrinsics& a, const Intrinsics& b) {
+  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
+         a.cy == b.cy;
+}
+
+}  // namespace track_detail
+
+template <class Backend>
+class Tracker {
+ public:
+  /// Validates the models and settings and uploads the models to the backend's renderer. Throws
+  /// InvalidInput on no models, a bad mesh or bad settings.
+  explicit Tracker(std::vector<SixDofModel> models, TrackSettings settings = {})
+      : models_(std::move(models)), settings_(std::move(settings)), renderer_(meshes(models_)) {
+    validate(settings_);
+    for (const SixDofModel& m : models_)
+      flat_axes_.push_back(track_detail::flat_axes(m.mesh)),
+          printed_.push_back(track_detail::printed(m.mesh));
+  }
+
+  const TrackSettings& settings() const { return settings_; }
+  /// Changed settings are validated by the next start() or update().
+  TrackSettings& settings() { return settings_; }
+  const std::vector<SixDofModel>& models() const { return models_; }
+  /// The tracked objects after the last frame (empty before start()).
+  const std::vector<TrackedObject>& objects() const { return last_.objects; }
+
+  /// Starts tracking `starts` (forgetting what was tracked): the poses are refined on `frame` as by
+  /// update() (with no motion) and checked, so a start that does not explain the frame is lost from the
+  /// start. Throws InvalidInput on a malformed frame, no starts, an unknown model or a non-finite pose.
+  TrackResult start(const RgbdFrame& frame, const std::vector<TrackStart>& starts) {
+    validate(settings_);
+    frame.validate("tracking start frame");
+    if (starts.empty()) throw InvalidInput("tracking starts", "no objects to track");
+    for (std::size_t i = 0; i < starts.size(); ++i) {
+      const std::string who = "tracking start " + std::to_string(i);
+      if (starts[i].model < 0 || std::size_t(starts[i].model) >= models_.size())
+        throw InvalidInput(who, "model " + std::to_string(starts[i].model) + " is not one of the " +
+                                    std::to_string(models_.size()) + " models");
+      if (!starts[i].T_cam_obj.matrix().allFinite()) throw InvalidInput(who, "pose is not finite");
+    }
+    camera_ = frame.camera;
+    states_.clear();
+    for (std::size_t i = 0; i < starts.size(); ++i) {
+      State s;
+      s.out.object = int(i), s.out.model = starts[i].model;
+      s.out.T_cam_obj = track_detail::rigid(starts[i].T_cam_obj);
+      states_.push_back(s);
+    }
+    frame_ = 0;
+    return step(frame);
+  }
+
+  /// Tracks every object into `frame` (see the file comment). Throws InvalidInput before start(), on a
+  /// malformed frame or one whose camera differs from the start frame's, and on bad settings.
+  TrackResult update(const RgbdFrame& frame) {
+    if (states_.empty()) throw InvalidInput("Tracker::update", "call start() first");
+    validate(settings_);
+    frame.validate("tracking frame " + std::to_string(frame_ + 1));
+    if (!track_detail::same_camera(frame.camera, camera_))
+      throw InvalidInput("tracking frame " + std::to_string(frame_ + 1),
+                         "its camera differs from the start frame's (" + std::to_string(frame.camera.width) +
+                             "x" + std::to_string(frame.camera.height) + " vs " +
+                             std::to_string(camera_.width) + "x" + std::to_string(camera_.height) +
+                             " or other intrinsics): start() again");
+    ++frame_;
+    return step(frame);
+  }
+
+ private:
+  struct State {
+    TrackedObject out;
+    Pose velocity = Pose::Identity();  ///< the last frame-to-frame motion, camera frame
+    float usual_visible = -1.f;        ///< running mean of the visible fraction while tracked (-1: none yet)
+    float usual_score = -1.f;          ///< running mean of the score while tracked (-1: none yet)
+  };
+
+  static std::vector<Mesh> meshes(const std::vector<SixDofModel>& models) {
+    if (models.empty()) throw InvalidInput("tracking models", "no models given");
+    std::vector<Mesh> out;
+    for (const auto& m : models) out.push_back(m.mesh);
+    return out;
+  }
+
+  /// Renders every object at `poses` through the padded camera.
+  CloudBatch render(const std::vector<Pose>& poses, const track_detail::PaddedCamera& pc,
+                    TrackTimings& t) const {
+    const auto t0 = track_detail::Clock::now();
+    std::vector<Hypothesis> hyps(states_.size());
+    for (std::size_t i = 0; i < hyps.size(); ++i)
+      hyps[i].model = states_[i].out.model, hyps[i].T_cam_obj = poses[i];
+    RenderSettings rs;
+    rs.stride = settings_.render_stride;
+    CloudBatch out = renderer_.render(hyps, pc.camera, rs);
+    t.render += track_detail::seconds_since(t0);
+    return out;
+  }
+
+  /// One round: readings assigned around the renders at `poses`, each object with enough of them refined
+  /// by GICP (poses moved).
+  void round(const RgbdFrame& frame, const TrackRound& r, const track_detail::PaddedCamera& pc,
+             std::vector<Pose>& poses, TrackTimings& t) const {
+    const CloudBatch rendered = render(poses, pc, t);
+    auto t0 = track_detail::Clock::now();
+    track_detail::Regions regions(rendered, pc, settings_.render_stride);
+    regions.grow(r.margin_px, r.depth_gate_m);
+    const CloudBatch targets = regions.segments(frame, settings_.observed_stride);
+    const CloudBatch visible = regions.visible(rendered, pc, frame, settings_.occlusion_margin_m);
+    t.region += track_detail::seconds_since(t0);
+    t0 = track_detail::Clock::now();
+    // Only objects with enough readings and visible points are refined (the others coast).
+    CloudBatch sources;
+    std::vector<std::int32_t> segment;
+    std::vector<std::size_t> object;
+    for (std::size_t c = 0; c < states_.size(); ++c) {
+      if (targets.cloud_size(c) < std::size_t(settings_.min_segment_points) ||
+          visible.cloud_size(c) < std::size_t(std::max(r.gicp.min_inliers, 3)))
+        continue;
+      for (auto i = std::size_t(visible.offsets[c]); i < std::size_t(visible.offsets[c + 1]); ++i) {
+        sources.x.push_back(visible.x[i]), sources.y.push_back(visible.y[i]),
+            sources.z.push_back(visible.z[i]);
+        sources.rgb.push_back(visible.rgb[i]), sources.pixel.push_back(visible.pixel[i]);
+        sources.cloud.push_back(std::int32_t(object.size()));
+      }
+      sources.offsets.push_back(std::int64_t(sources.size()));
+      segment.push_back(std::int32_t(c)), object.push_back(c);
+    }
+    if (!object.empty()) {
+      const typename Backend::Registration registration(targets);
+      const RegistrationResult res = registration.gicp(sources, segment, r.gicp);
+      for (std::size_t k = 0; k < object.size(); ++k) {
+        Pose& T = poses[object[k]];
+        Pose moved = track_detail::rigid(res.T_corr[k] * T);
+        for (const int axis : flat_axes_[std::size_t(states_[object[k]].out.model)])
+          moved = track_detail::rigid(track_detail::without_turn(T, moved, axis));
+        T = moved;
+      }
+    }
+    t.refine += track_detail::seconds_since(t0);
+  }
+
+  /// The turn hold (TurnHoldSettings) of every printed object with a flat axis, at `poses` (moved).
+  void hold_turns(const RgbdFrame& frame, std::vector<Pose>& poses, TrackTimings& t) const {
+    const TurnHoldSettings& h = settings_.turn_hold;
+    std::vector<std::size_t> held;
+    for (std::size_t i = 0; i < states_.size(); ++i)
+      if (const auto m = std::size_t(states_[i].out.model); printed_[m] && !flat_axes_[m].empty())
+        held.push_back(i);
+    if (held.empty() || frame.rgb.empty() || h.levels == 0) return;
+    const auto t0 = track_detail::Clock::now();
+    RenderSettings rs;
+    rs.stride = h.stride;
+    float step = h.step_rad;
+    for (int level = 0; level < h.levels; ++level, step *= 0.5f) {
+      // Per held object: its pose, then +-step about each flat axis.
+      std::vector<Hypothesis> batch;
+      std::vector<std::size_t> first;
+      for (const std::size_t i : held) {
+        first.push_back(batch.size());
+        const int model = states_[i].out.model;
+        batch.push_back({model, poses[i], -1});
+        for (const int axis : flat_axes_[std::size_t(model)])
+          for (const float sign : {-1.f, 1.f})
+            batch.push_back({model, track_detail::turned(poses[i], axis, sign * step), -1});
+      }
+      first.push_back(batch.size());
+      const CloudBatch rendered = renderer_.render(batch, frame.camera, rs);
+      const std::vector<AppearanceSamples> samples = appearance_samples(rendered, frame, h.depth_tolerance_m);
+      for (std::size_t k = 0; k < held.size(); ++k) {
+        PrintVariation variation(frame.camera.width, h.stride);
+        for (std::size_t b = first[k]; b < first[k + 1]; ++b) variation.add(samples[b]);
+        float best = appearance_score(samples[first[k]], &variation).ncc + h.min_gain;
+        for (std::size_t b = first[k] + 1; b < first[k + 1]; ++b)
+          if (const float a = appearance_score(samples[b], &variation).ncc; a > best)
+            best = a, poses[held[k]] = batch[b].T_cam_obj;
+      }
+    }
+    t.turn_hold += track_detail::seconds_since(t0);
+  }
+
+  /// The check at `poses`: per object its cost, score, visible fraction and readings.
+  void check(const RgbdFrame& frame, const track_detail::PaddedCamera& pc, const std::vector<Pose>& poses,
+             std::vector<TrackedObject>& out, TrackTimings& t) const {
+    const CloudBatch rendered = render(poses, pc, t);
+    const auto t0 = track_detail::Clock::now();
+    track_detail::Regions regions(rendered, pc, settings_.render_stride);
+    regions.grow(settings_.check_margin_px, settings_.check_depth_gate_m);
+    const CloudBatch targets = regions.segments(frame, settings_.observed_stride);
+    const CloudBatch visible = regions.visible(rendered, pc, frame, settings_.occlusion_margin_m);
+    std::vector<CostBreakdown> costs(states_.size());
+    if (targets.size() > 0) {
+      const typename Backend::Cost cost(targets);
+      CostRequest request;
+      for (std::size_t c = 0; c < states_.size(); ++c) request.add(std::int32_t(c));
+      costs = cost.evaluate(visible, request, settings_.cost).hypotheses;
+    }
+    for (std::size_t c = 0; c < states_.size(); ++c) {
+      out[c].cost = costs[c];
+      out[c].segment_points = int(targets.cloud_size(c));
+      out[c].score = targets.cloud_size(c) > 0 ? sixdof_detail::pose_score(costs[c]) : 0.f;
+      const int all = regions.rendered_points(c);
+      out[c].visible_fraction = all > 0 ? float(visible.cloud_size(c)) / float(all) : 0.f;
+      out[c].visible_points = int(visible.cloud_size(c));
+    }
+    t.check += track_detail::seconds_since(t0);
+  }
+
+  TrackResult step(const RgbdFrame& frame) {
+    const auto t_start = track_detail::Clock::now();
+    const TrackSettings& s = settings_;
+    TrackResult result;
+    result.frame = frame_;
+    // ---- predict
+    auto t0 = track_detail::Clock::now();
+    std::vector<Pose> predicted(states_.size()), poses(states_.size());
+    for (std::size_t i = 0; i < states_.size(); ++i) {
+      const State& st = states_[i];
+      const bool moving = st.out.state != TrackState::Lost || st.out.frames_lost <= s.coast_frames;
+      predicted[i] =
+          moving
+              ? track_detail::rigid(track_detail::scaled(st.velocity, s.velocity_factor) * st.out.T_cam_obj)
+              : st.out.T_cam_obj;
+    }
+    poses = predicted;
+    result.timings.predict = track_detail::seconds_since(t0);
+    // ---- rounds, check
+    const track_detail::PaddedCamera pc(frame.camera, s.render_stride);
+    for (const TrackRound& r : s.rounds) round(frame, r, pc, poses, result.timings);
+    hold_turns(frame, poses, result.timings);
+    std::vector<TrackedObject> checked(states_.size());
+    check(frame, pc, poses, checked, result.timings);
+    // ---- state: tracking objects must pass the check; lost ones must pass recover_ratio of their usual
+    // score
+    for (std::size_t i = 0; i < states_.size(); ++i) {
+      State& st = states_[i];
+      const TrackedObject& c = checked[i];
+      const bool was_lost = st.out.state == TrackState::Lost;
+      const float usual = st.usual_visible < 0.f ? c.visible_fraction : st.usual_visible;
+      const bool pass = c.segment_points >= s.min_segment_points &&
+                        c.visible_points >= s.min_visible_points &&
+                        c.visible_fraction >= s.min_visible_ratio * usual && c.score >= s.min_score &&
+                        (!was_lost || c.score >= s.recover_ratio * st.usual_score);
+      const Pose T_before = st.out.T_cam_obj;
+      st.out.cost = c.cost, st.out.score = c.score, st.out.visible_fraction = c.visible_fraction;
+      st.out.segment_points = c.segment_points, st.out.visible_points = c.visible_points;
+      // A tracked pose refined onto readings is the best guess even when it fails the check; a lost one
+      // coasts (refined onto what failed the check, it could wander off onto anything).
+      const bool refined = c.segment_points >= s.min_segment_points && !was_lost;
+      st.out.T_cam_obj = pass || refined ? poses[i] : predicted[i];
+      if (pass) {
+        if (!was_lost) st.velocity = track_detail::motion(T_before, poses[i]);  // a lost one keeps its last
+        auto running = [](float mean, float x) { return mean < 0.f ? x : 0.9f * mean + 0.1f * x; };
+        st.usual_visible = running(st.usual_visible, c.visible_fraction);
+        st.usual_score = running(st.usual_score, c.score);
+        st.out.state = was_lost ? TrackState::Recovered : TrackState::Tracking;
+        st.out.frames_lost = 0;
+      } else {
+        st.out.state = TrackState::Lost;
+        ++st.out.frames_lost;
+      }
+      result.objects.push_back(st.out);
+    }
+    result.timings.total = track_detail::seconds_since(t_start);
+    last_ = result;
+    return result;
+  }
+
+  std::vector<SixDofModel> models_;
+  TrackSettings settings_;
+  typename Backend::Renderer renderer_;
+  std::vector<std::vector<int>> flat_axes_;  ///< per model: the turns GICP cannot see (track/turn_hold.hpp)
+  std::vector<bool> printed_;                ///< per model: whose turns the turn hold holds
+  std::vector<State> states_;
+  Intrinsics camera_;
+  int frame_ = 0;
+  TrackResult last_;
+};
+
+}  // namespace perch2
