@@ -1,15 +1,20 @@
 // Tracking latency and accuracy on generated sequences: a hand-held camera circling a table of 4-7 objects
 // (synth::camera_path), tracked from a start by perch2's own search (--init search, --masks none with the
 // objects given) or from the ground truth (--init gt). Prints per sequence ADD-S / ADD(-S) < 2 cm over
-// all frames, frames lost, and the median and 95th percentile of the update's wall time.
+// all frames, frames lost, losses and recoveries (and the frames each took), the recovery's searches, and
+// the median and 95th percentile of the update's wall time. The frames are rendered first and fed at
+// --fps (30; 0: as fast as the tracker goes), so a background search spans the frames it would in a
+// camera's stream.
 //
 //   bench_track [--sequences N] [--frames N] [--seed S] [--init gt|search] [--backend cpu|thrust_omp]
-//               [--objects N] [--verbose]
+//               [--objects N] [--fps F] [--foreground] [--verbose]
 #include <omp.h>
 
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "bench_support.hpp"
@@ -28,6 +33,7 @@ namespace {
 
 struct Options {
   int sequences = 2, frames = 90, objects = 5;
+  double fps = 30;
   std::uint64_t seed = 1;
   std::string init = "gt", backend = "thrust_omp", dump;
   bool verbose = false, restart = false;
@@ -71,6 +77,8 @@ void run(const Options& o) {
   if (o.init == "search") estimator = std::make_unique<SixDofEstimator<Backend>>(models);
   std::vector<double> all_times;
   int all_frames = 0, all_within = 0, all_adds = 0, confident_wrong = 0, lost_frames = 0;
+  int losses = 0, recoveries = 0, searches = 0;
+  std::vector<double> frames_to_recover;
   for (int seq = 0; seq < o.sequences; ++seq) {
     synth::Rng rng = synth::Rng::stream(o.seed, std::uint64_t(seq));
     synth::SceneSettings ss;
@@ -83,11 +91,22 @@ void run(const Options& o) {
     video.frames = o.frames;
     const std::vector<Pose> path = synth::camera_path(ss, video, rng);
     synth::SensorSettings sensor;
-    std::vector<double> times;
-    int within = 0, adds_ok = 0, frames = 0;
+    std::vector<RgbdFrame> stream;
     for (int f = 0; f < o.frames; ++f) {
       const synth::Frame fr = renderer.render(path[std::size_t(f)], sensor, rng);
-      RgbdFrame frame{fr.camera, fr.depth_m, fr.rgb};
+      stream.push_back({fr.camera, fr.depth_m, fr.rgb});
+    }
+    std::vector<double> times;
+    std::vector<int> lost_since(scene.objects.size(), -1);
+    int within = 0, adds_ok = 0, frames = 0;
+    auto due = std::chrono::steady_clock::now();
+    for (int f = 0; f < o.frames; ++f) {
+      if (o.fps > 0) {  // the next frame arrives 1 / fps after the last one, or now if the tracker is late
+        std::this_thread::sleep_until(due);
+        due = std::max(due, std::chrono::steady_clock::now() - std::chrono::milliseconds(1)) +
+              std::chrono::microseconds(std::int64_t(1e6 / o.fps));
+      }
+      const RgbdFrame& frame = stream[std::size_t(f)];
       std::vector<Pose> gt;
       for (const auto& ob : scene.objects) gt.push_back(path[std::size_t(f)].inverse() * ob.T_world_obj);
       TrackResult r;
@@ -109,6 +128,15 @@ void run(const Options& o) {
       } else {
         r = tracker.update(frame);
         times.push_back(r.timings.total);
+        searches += int(r.searched.size());
+      }
+      for (const TrackedObject& t : r.objects) {
+        int& since = lost_since[std::size_t(t.object)];
+        if (t.state == TrackState::Lost && since < 0) since = f, ++losses;
+        if (t.state == TrackState::Recovered) {  // lost and found in one frame: a loss of 0 frames
+          if (since < 0) since = f, ++losses;
+          ++recoveries, frames_to_recover.push_back(f - since), since = -1;
+        }
       }
       // Each tracked object against its nearest ground-truth instance of the same model.
       for (const TrackedObject& t : r.objects) {
@@ -161,10 +189,13 @@ void run(const Options& o) {
   }
   std::printf(
       "%s, %s: %d object-frames: tracked within 2 cm %.1f %%, any state within 2 cm %.1f %%, lost %d, "
-      "confident > 5 cm %d; update median %.1f ms, p95 %.1f ms (%s, %d threads)\n",
+      "confident > 5 cm %d; losses %d, recoveries %d (frames to recover median %.0f, max %.0f), searches "
+      "%d; update median %.1f ms, p95 %.1f ms at %.0f fps (%s, %d threads)\n",
       Backend::name, o.init.c_str(), all_frames, 100.0 * all_within / std::max(all_frames, 1),
-      100.0 * all_adds / std::max(all_frames, 1), lost_frames, confident_wrong, median_or_0(all_times) * 1e3,
-      percentile(all_times, 0.95) * 1e3, bench::cpu_model().c_str(), omp_get_max_threads());
+      100.0 * all_adds / std::max(all_frames, 1), lost_frames, confident_wrong, losses, recoveries,
+      median_or_0(frames_to_recover), percentile(frames_to_recover, 1.0), searches,
+      median_or_0(all_times) * 1e3, percentile(all_times, 0.95) * 1e3, o.fps, bench::cpu_model().c_str(),
+      omp_get_max_threads());
 }
 
 }  // namespace
@@ -192,6 +223,10 @@ int main(int argc, char** argv) {
       o.init = next();
     else if (a == "--backend")
       o.backend = next();
+    else if (a == "--fps")
+      o.fps = std::stod(next());
+    else if (a == "--foreground")
+      o.track.recovery.background = false;
     else if (a == "--verbose")
       o.verbose = true;
     else if (a == "--dump")

@@ -4,6 +4,7 @@
 #include <doctest/doctest.h>
 
 #include <Eigen/Geometry>
+#include <chrono>
 #include <cmath>
 #include <vector>
 
@@ -29,8 +30,10 @@ struct Sequence {
   std::vector<int> model;             ///< per object
 };
 
+/// From frame `move_at` on, object 0 stands `move_m` (world frame) from where it was (pushed while hidden).
 Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, int frames,
-                       float degrees_per_frame) {
+                       float degrees_per_frame, int move_at = -1,
+                       const Eigen::Vector3f& move_m = Eigen::Vector3f::Zero()) {
   Sequence s;
   const auto all = synth::builtin_models();
   for (int id : model_ids) s.models.push_back(all[std::size_t(id)]);
@@ -44,7 +47,9 @@ Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, in
   ss.camera_min_distance_m = 0.55f, ss.camera_max_distance_m = 0.65f;
   synth::Rng rng(seed);
   const synth::Scene scene = synth::compose_scene(s.models, ss, rng);
-  const synth::SceneRenderer renderer(s.models, scene);
+  synth::Scene moved = scene;
+  moved.objects[0].T_world_obj.translation() += move_m;
+  const synth::SceneRenderer renderer(s.models, scene), moved_renderer(s.models, moved);
   synth::VideoSettings video;
   video.frames = frames, video.degrees_per_frame = degrees_per_frame, video.burst_probability = 0.f;
   const std::vector<Pose> path = synth::camera_path(ss, video, rng);
@@ -52,10 +57,11 @@ Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, in
   sensor.camera = {307.5f, 307.5f, 159.5f, 119.5f, 320, 240};
   for (const auto& o : scene.objects) s.model.push_back(o.model);
   for (const Pose& T_world_cam : path) {
-    const synth::Frame f = renderer.render(T_world_cam, sensor, rng);
+    const bool after = move_at >= 0 && int(s.frames.size()) >= move_at;
+    const synth::Frame f = (after ? moved_renderer : renderer).render(T_world_cam, sensor, rng);
     s.frames.push_back({f.camera, f.depth_m, f.rgb});
     std::vector<Pose> gt;
-    for (const auto& o : scene.objects) gt.push_back(T_world_cam.inverse() * o.T_world_obj);
+    for (const auto& o : (after ? moved : scene).objects) gt.push_back(T_world_cam.inverse() * o.T_world_obj);
     s.gt.push_back(gt);
   }
   return s;
@@ -89,7 +95,20 @@ TrackSettings test_settings() {
   t.render_stride = 2, t.observed_stride = 2;
   t.rounds[0].margin_px = 12, t.rounds[1].margin_px = 4, t.check_margin_px = 4;
   t.turn_hold.stride = 1;
+  t.recovery.background = false;  // reproducible: the search's answer is taken in the frame it ran on
   return t;
+}
+
+/// Frame f of `s` with a flat occluder 25 cm in front of object 0 (a hand passing), 91 x 91 px.
+RgbdFrame occluded(const Sequence& s, std::size_t f) {
+  RgbdFrame frame = s.frames[f];
+  const Eigen::Vector3f c = s.gt[f][0].translation();
+  const Vec2f uv = frame.camera.project({c.x(), c.y(), c.z()});
+  for (int v = int(uv.y) - 45; v <= int(uv.y) + 45; ++v)
+    for (int u = int(uv.x) - 45; u <= int(uv.x) + 45; ++u)
+      if (u >= 0 && v >= 0 && u < frame.camera.width && v < frame.camera.height)
+        frame.depth_m(u, v) = c.z() - 0.25f, frame.rgb(u, v) = Rgb8{220, 180, 150};
+  return frame;
 }
 
 }  // namespace
@@ -166,33 +185,66 @@ TEST_CASE_TEMPLATE("Tracker follows a circling camera from the true start within
   CHECK(worst < 0.01);
 }
 
-TEST_CASE("Tracker: an occluder over an object makes it lost, never a confident wrong pose") {
-  const Sequence s = make_sequence(5, {5, 7}, 30, 0.5f);
+TEST_CASE("Tracker: an occluder over an object makes it lost, never a confident wrong pose, then recovered") {
+  const Sequence s = make_sequence(5, {5, 7}, 50, 0.5f);
   Tracker<thrust_omp::Backend> tracker(sixdof_models(s.models), test_settings());
   tracker.start(s.frames[0], starts_at(s, 0));
-  // A flat occluder 25 cm in front of object 0 (a hand passing) over frames 10 .. 19.
-  bool lost = false;
+  // A flat occluder 25 cm in front of object 0 (a hand passing) over frames 10 .. 29.
+  int lost = 0, recovered_at = -1, searches = 0;
   for (std::size_t f = 1; f < s.frames.size(); ++f) {
-    RgbdFrame frame = s.frames[f];
-    const bool covered = f >= 10 && f < 20;
-    if (covered) {
-      const Eigen::Vector3f c = s.gt[f][0].translation();
-      const Vec2f uv = frame.camera.project({c.x(), c.y(), c.z()});
-      for (int v = int(uv.y) - 45; v <= int(uv.y) + 45; ++v)
-        for (int u = int(uv.x) - 45; u <= int(uv.x) + 45; ++u)
-          if (u >= 0 && v >= 0 && u < frame.camera.width && v < frame.camera.height)
-            frame.depth_m(u, v) = c.z() - 0.25f, frame.rgb(u, v) = Rgb8{220, 180, 150};
-    }
-    const TrackResult r = tracker.update(frame);
+    const bool covered = f >= 10 && f < 30;
+    const TrackResult r = tracker.update(covered ? occluded(s, f) : s.frames[f]);
+    searches += int(r.searched.size());
     const TrackedObject& o = r.objects[0];
     const double e = pose_error(o.T_cam_obj, s.gt[f][0], s.models[std::size_t(o.model)]);
     INFO("frame " << f << ": " << std::string(to_string(o.state)) << ", error " << e * 1e3 << " mm, score "
                   << o.score << ", visible " << o.visible_fraction << ", readings " << o.segment_points);
     if (covered) CHECK(o.state == TrackState::Lost);
     if (o.state != TrackState::Lost) CHECK(e < 0.02);  // never a confident wrong pose
-    lost = lost || o.state == TrackState::Lost;
+    lost += o.state == TrackState::Lost;
+    if (o.state == TrackState::Recovered && recovered_at < 0) recovered_at = int(f);
+    CHECK(r.objects[1].state != TrackState::Lost);  // the other object is tracked throughout
   }
-  CHECK(lost);
+  MESSAGE("lost " << lost << " frames, " << searches << " searches, recovered at frame " << recovered_at);
+  CHECK(lost >= 20);
+  CHECK(searches > 0);
+  CHECK(recovered_at >= 30);
+  CHECK(recovered_at < 30 + 30);  // within 30 frames of the occluder leaving
+  CHECK(tracker.objects()[0].state != TrackState::Lost);
+}
+
+TEST_CASE("Tracker: an object moved while hidden is found again by the search (here and in the background)") {
+  // Object 0 (a box) is pushed 7 cm along the table at frame 15, while the occluder covers it (frames
+  // 10 .. 19): its coasted pose is far off, only the search finds it. Refined from the coasted pose it
+  // slides onto the table where it stood (a confident wrong pose without max_recovery_move_m).
+  const Sequence s = make_sequence(5, {5, 7}, 40, 0.5f, 15, {0.f, 0.07f, 0.f});
+  for (const bool background : {false, true}) {
+    INFO("background " << background);
+    TrackSettings ts = test_settings();
+    ts.recovery.background = background;
+    Tracker<thrust_omp::Backend> tracker(sixdof_models(s.models), ts);
+    tracker.start(s.frames[0], starts_at(s, 0));
+    int searches = 0, recovered_at = -1;
+    // The last frame repeats (a still camera) until the background search has answered (a minute at most:
+    // sanitizer builds are slow).
+    const auto t0 = std::chrono::steady_clock::now();
+    for (std::size_t k = 1;
+         recovered_at < 0 && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60); ++k) {
+      const std::size_t f = std::min(k, s.frames.size() - 1);
+      const TrackResult r = tracker.update(f >= 10 && f < 20 ? occluded(s, f) : s.frames[f]);
+      searches += int(r.searched.size());
+      const TrackedObject& o = r.objects[0];
+      const double e = pose_error(o.T_cam_obj, s.gt[f][0], s.models[std::size_t(o.model)]);
+      INFO("update " << k << ": " << std::string(to_string(o.state)) << ", error " << e * 1e3 << " mm");
+      if (o.state != TrackState::Lost) CHECK(e < 0.02);
+      if (o.state == TrackState::Recovered) recovered_at = int(k);
+    }
+    MESSAGE("background " << background << ": " << searches << " searches, recovered at update "
+                          << recovered_at);
+    CHECK(recovered_at >= 15);
+    if (!background) CHECK(recovered_at < 15 + 30);
+    CHECK(searches > 0);
+  }
 }
 
 TEST_CASE("Tracker refuses bad input with the input named") {

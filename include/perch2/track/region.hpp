@@ -50,8 +50,12 @@ struct PaddedCamera {
 /// whose render is nearest there, grown by a margin; per object its rendered depth range.
 class Regions {
  public:
-  /// `rendered`: cloud c = object c rendered through `pc` at `stride`.
-  Regions(const CloudBatch& rendered, const PaddedCamera& pc, int stride) : cell_(stride) {
+  /// `rendered`: cloud c = object c rendered through `pc` at `stride`. An object with `yields[c]` set (a
+  /// lost one) gets no cell another object's render covers, whatever their depths: a lost pose must not
+  /// take the readings of an object that is tracked (empty: none yields).
+  Regions(const CloudBatch& rendered, const PaddedCamera& pc, int stride,
+          const std::vector<bool>& yields = {})
+      : cell_(stride) {
     cols_ = (pc.frame_width + stride - 1) / stride, rows_ = (pc.frame_height + stride - 1) / stride;
     const std::size_t n = rendered.num_clouds();
     owner_.assign(std::size_t(cols_) * std::size_t(rows_), -1);
@@ -68,7 +72,10 @@ class Regions {
         pc.frame_pixel(rendered.pixel[i], u, v);
         if (!pc.in_frame(u, v)) continue;
         const std::size_t k = cell(u, v);
-        if (z < depth_[k]) depth_[k] = z, owner_[k] = std::int32_t(c);
+        const bool yielding = !yields.empty() && yields[c];
+        const bool held = owner_[k] >= 0 && !yields.empty() && yields[std::size_t(owner_[k])];
+        if (owner_[k] < 0 || (held && !yielding) || (held == yielding && z < depth_[k]))
+          depth_[k] = z, owner_[k] = std::int32_t(c);
       }
     silhouette_ = owner_;
   }
@@ -142,9 +149,9 @@ class Regions {
     return out;
   }
 
-  /// The rendered points in the frame that no other reading hides (nearer by more than margin_m and not
-  /// the object's own), as frame pixels; per object the count of all its rendered points (visible_fraction's
-  /// denominator: also those outside the frame) in all_points.
+  /// The rendered points in the frame where the frame has a reading that does not hide them (nearer by more
+  /// than margin_m and not the object's own), as frame pixels; per object the count of all its rendered
+  /// points (visible_fraction's denominator: also those outside the frame) in all_points.
   CloudBatch visible(const CloudBatch& rendered, const PaddedCamera& pc, const RgbdFrame& frame,
                      float margin_m) const {
     CloudBatch out;
@@ -154,7 +161,9 @@ class Regions {
         pc.frame_pixel(rendered.pixel[i], u, v);
         if (!pc.in_frame(u, v)) continue;
         const float d = frame.depth_m(u, v), z = rendered.z[i];
-        if (d > 0.f && d < z - margin_m && owner_of(u, v, d) != std::int32_t(c)) continue;
+        // No reading (dropout at depth edges, dark or glossy patches): neither for nor against the pose.
+        if (!(d > 0.f)) continue;
+        if (d < z - margin_m && owner_of(u, v, d) != std::int32_t(c)) continue;
         out.x.push_back(rendered.x[i]), out.y.push_back(rendered.y[i]), out.z.push_back(z);
         out.rgb.push_back(rendered.rgb[i]), out.pixel.push_back(v * frame.camera.width + u);
         out.cloud.push_back(std::int32_t(c));

@@ -12,6 +12,7 @@
 #include "perch2/core/pose.hpp"
 #include "perch2/cost/cost.hpp"
 #include "perch2/registration/registration.hpp"
+#include "perch2/search/sixdof/settings.hpp"
 
 namespace perch2 {
 
@@ -52,6 +53,29 @@ struct TurnHoldSettings {
   int stride = 2;           ///< render stride of the comparison, >= 1
   float min_gain = 0.005f;  ///< a turn must raise the appearance correlation by this to be taken, >= 0
   float depth_tolerance_m = 0.01f;  ///< a rendered point is compared where the reading lies this near, metres
+};
+
+/// How a lost object is found again: the 6-DoF search without masks (SixDofEstimator::estimate_scene with
+/// that one object) over a window of the frame around its last pose, then over the whole frame, with the
+/// readings of the objects still tracked withheld. A search costs a few hundred milliseconds, so few are
+/// run per update and each object waits between its searches; the found pose is refined and checked in
+/// the same frame as a tracked one and is `recovered` only if the check passes the recovery rule.
+struct RecoverySettings {
+  int per_frame = 1;        ///< searches in one update at most (the longest lost first), >= 0 (0: no search)
+  int every_frames = 4;     ///< frames an object waits between its searches, >= 1
+  int window_searches = 2;  ///< searches in the window before the whole frame is searched, >= 0
+  /// The window: a disc around the last pose's projected centre, of radius this times the model's radius
+  /// in pixels there plus window_margin_px (the object moved while lost, or was lost because the pose slid).
+  float window_factor = 2.f;
+  int window_margin_px = 40;  ///< pixels, >= 0
+  /// A window with fewer readings than this is not searched (the object is out of view), >= 1.
+  int min_window_readings = 200;
+  /// Run the search in a background thread (its OpenMP threads share the cores with the update): the
+  /// updates go on at their rate and the answer, found on an earlier frame, is moved into the current one
+  /// by the camera's motion since (from the tracked object nearest to it). false: in update() itself, which
+  /// then takes as long as the search (reproducible; tests).
+  bool background = true;
+  SixDofSettings search;  ///< the search's settings (SixDofEstimator)
 };
 
 struct TrackSettings {
@@ -101,6 +125,11 @@ struct TrackSettings {
   /// (the running mean while tracked; stricter than min_score alone: it was found from a prediction, not
   /// followed), in [0, 1].
   float recover_ratio = 0.9f;
+  /// A lost object is recovered only if the rounds moved it at most this far from where they started (its
+  /// coasted prediction, or the search's pose): a lost pose refined far away has slid onto something else
+  /// (a box's face onto the table it stood on), metres and radians (> 0).
+  float max_recovery_move_m = 0.03f, max_recovery_turn_rad = 0.35f;
+  RecoverySettings recovery;
 };
 
 /// One tracked object after a frame.
@@ -116,17 +145,20 @@ struct TrackedObject {
   int visible_points = 0;      ///< rendered points in view and not hidden (render stride)
   int segment_points = 0;      ///< readings assigned to it in the check
   int frames_lost = 0;         ///< consecutive frames lost (0 while tracking)
+  int searches = 0;            ///< searches run for it since it was lost (RecoverySettings)
   CostBreakdown cost;          ///< the check's cost
 };
 
 struct TrackTimings {  ///< seconds, wall clock, of one frame
   double predict = 0, render = 0, region = 0, refine = 0, turn_hold = 0, check = 0, total = 0;
+  double search = 0;  ///< the recovery's searches and the check of what they found
 };
 
 struct TrackResult {
   std::vector<TrackedObject> objects;  ///< in start() order
   TrackTimings timings;
-  int frame = 0;  ///< frames since start() (start() itself is frame 0)
+  int frame = 0;              ///< frames since start() (start() itself is frame 0)
+  std::vector<int> searched;  ///< the objects searched for in this frame (RecoverySettings)
 };
 
 /// InvalidInput naming the field.
@@ -169,6 +201,19 @@ inline void validate(const TrackSettings& s) {
     throw InvalidInput("TrackSettings::min_visible_ratio", "must be in [0, 1]");
   if (s.min_visible_points < 0) throw InvalidInput("TrackSettings::min_visible_points", "must be >= 0");
   if (!fraction(s.recover_ratio)) throw InvalidInput("TrackSettings::recover_ratio", "must be in [0, 1]");
+  if (!positive(s.max_recovery_move_m))
+    throw InvalidInput("TrackSettings::max_recovery_move_m", "must be finite and > 0");
+  if (!positive(s.max_recovery_turn_rad))
+    throw InvalidInput("TrackSettings::max_recovery_turn_rad", "must be finite and > 0");
+  const RecoverySettings& r = s.recovery;
+  if (r.per_frame < 0) throw InvalidInput("TrackSettings::recovery.per_frame", "must be >= 0");
+  if (r.every_frames < 1) throw InvalidInput("TrackSettings::recovery.every_frames", "must be >= 1");
+  if (r.window_searches < 0) throw InvalidInput("TrackSettings::recovery.window_searches", "must be >= 0");
+  if (!(std::isfinite(r.window_factor) && r.window_factor >= 0.f))
+    throw InvalidInput("TrackSettings::recovery.window_factor", "must be finite and >= 0");
+  if (r.window_margin_px < 0) throw InvalidInput("TrackSettings::recovery.window_margin_px", "must be >= 0");
+  if (r.min_window_readings < 1)
+    throw InvalidInput("TrackSettings::recovery.min_window_readings", "must be >= 1");
 }
 
 }  // namespace perch2

@@ -21,6 +21,10 @@
 //            with its last velocity (coast_frames), is refined from there every frame and is recovered
 //            when a check passes recover_ratio of its usual score. A lost pose is a prediction, never a
 //            confident answer.
+//   search   a lost object is also searched for (RecoverySettings): the 6-DoF search without masks
+//            over a window around its last pose, later over the whole frame, without the readings of
+//            the objects still tracked; the found pose is refined and checked as above. Few searches per
+//            update, spread over frames.
 // The work per frame is bounded by the tracked objects' regions, independent of the catalogue.
 #pragma once
 
@@ -29,6 +33,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <future>
+#include <limits>
+#include <memory>
 #include <vector>
 
 #include "perch2/core/error.hpp"
@@ -36,9 +43,7 @@
 #include "perch2/core/pose.hpp"
 #include "perch2/cost/cost.hpp"
 #include "perch2/render/render.hpp"
-#include "perch2/search/sixdof/result.hpp"
-#include "perch2/search/sixdof/select.hpp"
-#include "perch2/search/sixdof/settings.hpp"
+#include "perch2/search/sixdof.hpp"
 #include "perch2/track/region.hpp"
 #include "perch2/track/settings.hpp"
 #include "perch2/track/turn_hold.hpp"
@@ -99,12 +104,25 @@ class Tracker {
   /// Validates the models and settings and uploads the models to the backend's renderer. Throws
   /// InvalidInput on no models, a bad mesh or bad settings.
   explicit Tracker(std::vector<SixDofModel> models, TrackSettings settings = {})
-      : models_(std::move(models)), settings_(std::move(settings)), renderer_(meshes(models_)) {
+      : models_(std::move(models)),
+        settings_(std::move(settings)),
+        renderer_(meshes(models_)),
+        search_(std::make_unique<SixDofEstimator<Backend>>(models_, settings_.recovery.search)) {
     validate(settings_);
-    for (const SixDofModel& m : models_)
+    for (const SixDofModel& m : models_) {
       flat_axes_.push_back(track_detail::flat_axes(m.mesh)),
           printed_.push_back(track_detail::printed(m.mesh));
+      float r = 0.f;
+      for (const Eigen::Vector3f& p : m.mesh.vertices) r = std::max(r, p.norm());
+      radius_m_.push_back(r);
+    }
   }
+
+  /// Waits for a background search.
+  ~Tracker() { drop_search(); }
+  Tracker(Tracker&&) = default;
+  Tracker& operator=(Tracker&&) =
+      delete;  ///< the old tracker's background search would outlive its estimator
 
   const TrackSettings& settings() const { return settings_; }
   /// Changed settings are validated by the next start() or update().
@@ -127,6 +145,7 @@ class Tracker {
                                     std::to_string(models_.size()) + " models");
       if (!starts[i].T_cam_obj.matrix().allFinite()) throw InvalidInput(who, "pose is not finite");
     }
+    drop_search();
     camera_ = frame.camera;
     states_.clear();
     for (std::size_t i = 0; i < starts.size(); ++i) {
@@ -161,6 +180,7 @@ class Tracker {
     Pose velocity = Pose::Identity();  ///< the last frame-to-frame motion, camera frame
     float usual_visible = -1.f;        ///< running mean of the visible fraction while tracked (-1: none yet)
     float usual_score = -1.f;          ///< running mean of the score while tracked (-1: none yet)
+    int next_search = 1;               ///< frames_lost at which it may be searched for again
   };
 
   static std::vector<Mesh> meshes(const std::vector<SixDofModel>& models) {
@@ -190,7 +210,7 @@ class Tracker {
              std::vector<Pose>& poses, TrackTimings& t) const {
     const CloudBatch rendered = render(poses, pc, t);
     auto t0 = track_detail::Clock::now();
-    track_detail::Regions regions(rendered, pc, settings_.render_stride);
+    track_detail::Regions regions(rendered, pc, settings_.render_stride, lost());
     regions.grow(r.margin_px, r.depth_gate_m);
     const CloudBatch targets = regions.segments(frame, settings_.observed_stride);
     const CloudBatch visible = regions.visible(rendered, pc, frame, settings_.occlusion_margin_m);
@@ -266,12 +286,14 @@ class Tracker {
     t.turn_hold += track_detail::seconds_since(t0);
   }
 
-  /// The check at `poses`: per object its cost, score, visible fraction and readings.
-  void check(const RgbdFrame& frame, const track_detail::PaddedCamera& pc, const std::vector<Pose>& poses,
-             std::vector<TrackedObject>& out, TrackTimings& t) const {
+  /// The check at `poses`: per object its cost, score, visible fraction and readings. Returns the check's
+  /// assignment of the readings.
+  track_detail::Regions check(const RgbdFrame& frame, const track_detail::PaddedCamera& pc,
+                              const std::vector<Pose>& poses, std::vector<TrackedObject>& out,
+                              TrackTimings& t) const {
     const CloudBatch rendered = render(poses, pc, t);
     const auto t0 = track_detail::Clock::now();
-    track_detail::Regions regions(rendered, pc, settings_.render_stride);
+    track_detail::Regions regions(rendered, pc, settings_.render_stride, lost());
     regions.grow(settings_.check_margin_px, settings_.check_depth_gate_m);
     const CloudBatch targets = regions.segments(frame, settings_.observed_stride);
     const CloudBatch visible = regions.visible(rendered, pc, frame, settings_.occlusion_margin_m);
@@ -291,6 +313,179 @@ class Tracker {
       out[c].visible_points = int(visible.cloud_size(c));
     }
     t.check += track_detail::seconds_since(t0);
+    return regions;
+  }
+
+  /// Per object: lost (its render yields to the others' in the Regions).
+  std::vector<bool> lost() const {
+    std::vector<bool> out;
+    for (const State& st : states_) out.push_back(st.out.state == TrackState::Lost);
+    return out;
+  }
+
+  /// The lost rule (TrackSettings): does check `c` of `st` (at `T`) pass?
+  /// A lost object must also reach recover_ratio of its usual score and have moved little in the rounds
+  /// (from `T_from` to `T`; max_recovery_move_m).
+  bool passes(const State& st, const TrackedObject& c, const Pose& T_from, const Pose& T) const {
+    const TrackSettings& s = settings_;
+    const float usual = st.usual_visible < 0.f ? c.visible_fraction : st.usual_visible;
+    const bool checked = c.segment_points >= s.min_segment_points &&
+                         c.visible_points >= s.min_visible_points &&
+                         c.visible_fraction >= s.min_visible_ratio * usual && c.score >= s.min_score;
+    if (!checked || st.out.state != TrackState::Lost) return checked;
+    const Pose m = track_detail::motion(T_from, T);
+    return c.score >= s.recover_ratio * st.usual_score && m.translation().norm() <= s.max_recovery_move_m &&
+           Eigen::AngleAxisf(m.linear()).angle() <= s.max_recovery_turn_rad;
+  }
+
+  /// `st` after check `c`: tracking (or recovered) at `T` if it passed, else lost at `T`.
+  static void settle(State& st, const TrackedObject& c, bool pass, const Pose& T) {
+    const bool was_lost = st.out.state == TrackState::Lost;
+    const Pose T_before = st.out.T_cam_obj;
+    st.out.cost = c.cost, st.out.score = c.score, st.out.visible_fraction = c.visible_fraction;
+    st.out.segment_points = c.segment_points, st.out.visible_points = c.visible_points;
+    st.out.T_cam_obj = T;
+    if (pass) {
+      if (!was_lost) st.velocity = track_detail::motion(T_before, T);  // a lost one keeps its last
+      auto running = [](float mean, float x) { return mean < 0.f ? x : 0.9f * mean + 0.1f * x; };
+      st.usual_visible = running(st.usual_visible, c.visible_fraction);
+      st.usual_score = running(st.usual_score, c.score);
+      st.out.state = was_lost ? TrackState::Recovered : TrackState::Tracking;
+      st.out.frames_lost = 0, st.out.searches = 0, st.next_search = 1;
+    } else {
+      st.out.state = TrackState::Lost;
+      ++st.out.frames_lost;
+    }
+  }
+
+  /// A copy of `frame` with only the readings the search for lost object `i` may use: those in its window
+  /// (RecoverySettings; the whole frame when `whole`) that no tracked object owns. `readings` counts them.
+  RgbdFrame search_window(const RgbdFrame& frame, const track_detail::Regions& regions, std::size_t i,
+                          bool whole, int& readings) const {
+    const RecoverySettings& r = settings_.recovery;
+    const Pose& T = states_[i].out.T_cam_obj;
+    const Eigen::Vector3f c = T.translation();
+    const Intrinsics& cam = frame.camera;
+    whole = whole || c.z() < 0.05f;
+    const Vec2f centre = whole ? Vec2f{0.f, 0.f} : cam.project({c.x(), c.y(), c.z()});
+    const float radius_px =
+        cam.fx * radius_m_[std::size_t(states_[i].out.model)] / std::max(c.z(), 0.05f) * r.window_factor +
+        float(r.window_margin_px);
+    RgbdFrame out = frame;
+    readings = 0;
+    for (int v = 0; v < cam.height; ++v)
+      for (int u = 0; u < cam.width; ++u) {
+        float& d = out.depth_m(u, v);
+        if (d <= 0.f) continue;
+        const float du = float(u) - centre.x, dv = float(v) - centre.y;
+        const std::int32_t o = regions.owner_of(u, v, d);
+        const bool owned =
+            o >= 0 && std::size_t(o) != i && states_[std::size_t(o)].out.state != TrackState::Lost;
+        if (owned || (!whole && du * du + dv * dv > radius_px * radius_px))
+          d = 0.f;
+        else
+          ++readings;
+      }
+    return out;
+  }
+
+  /// Searches for the lost objects whose wait is over (RecoverySettings), the longest lost first: in the
+  /// background (one search at a time; its answer is taken by the first update after it finished) or
+  /// here. A found pose is moved into this frame, refined (with every object at its pose) and checked, and
+  /// the object is recovered if the check passes. Changes the states and `result`.
+  void recover(const RgbdFrame& frame, const track_detail::PaddedCamera& pc,
+               const track_detail::Regions& regions, TrackResult& result) {
+    const RecoverySettings& r = settings_.recovery;
+    const auto t0 = track_detail::Clock::now();
+    if (pending_.valid() && pending_.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
+      const SixDofSceneResult found = pending_.get();
+      place(frame, pc, launched_, found, result);
+    }
+    std::vector<std::size_t> due;
+    for (std::size_t i = 0; i < states_.size(); ++i)
+      if (states_[i].out.state == TrackState::Lost && states_[i].out.frames_lost >= states_[i].next_search &&
+          !(pending_.valid() && launched_.object == i))
+        due.push_back(i);
+    std::stable_sort(due.begin(), due.end(), [&](std::size_t a, std::size_t b) {
+      return states_[a].out.frames_lost > states_[b].out.frames_lost;
+    });
+    due.resize(std::min(due.size(), std::size_t(r.per_frame)));
+    for (const std::size_t i : due) {
+      if (pending_.valid()) break;  // one background search at a time
+      State& st = states_[i];
+      st.next_search = st.out.frames_lost + r.every_frames;
+      ++st.out.searches;
+      result.searched.push_back(int(i));
+      int readings = 0;
+      RgbdFrame window = search_window(frame, regions, i, st.out.searches > r.window_searches, readings);
+      if (readings < r.min_window_readings) continue;
+      Launch launch{i, frame_, {}, {}};
+      for (const State& other : states_)
+        launch.T_cam_obj.push_back(other.out.T_cam_obj),
+            launch.tracked.push_back(other.out.state != TrackState::Lost);
+      search_->settings() = r.search;
+      const std::vector<SixDofObject> objects{{st.out.model, 1}};
+      if (r.background) {
+        launched_ = std::move(launch);
+        pending_ =
+            std::async(std::launch::async, [search = search_.get(), window = std::move(window), objects] {
+              return search->estimate_scene(window, objects);
+            });
+      } else {
+        place(frame, pc, launch, search_->estimate_scene(window, objects), result);
+      }
+    }
+    result.timings.search += track_detail::seconds_since(t0);
+  }
+
+  /// A search launched on an earlier frame: which object, when, and every object's pose then.
+  struct Launch {
+    std::size_t object = 0;
+    int frame = 0;
+    std::vector<Pose> T_cam_obj;
+    std::vector<bool> tracked;
+  };
+
+  /// The camera's motion since `launch`, from the tracked object nearest to `T` (the scene around a lost
+  /// object is taken as still); identity when no object was tracked then and now.
+  Pose motion_since(const Launch& launch, const Pose& T) const {
+    Pose out = Pose::Identity();
+    float nearest = std::numeric_limits<float>::infinity();
+    for (std::size_t j = 0; j < states_.size(); ++j) {
+      if (j == launch.object || !launch.tracked[j] || states_[j].out.state == TrackState::Lost) continue;
+      const float d = (launch.T_cam_obj[j].translation() - T.translation()).norm();
+      if (d < nearest) nearest = d, out = track_detail::motion(launch.T_cam_obj[j], states_[j].out.T_cam_obj);
+    }
+    return out;
+  }
+
+  /// A search's answer for `launch.object`, moved into `frame` (motion_since), refined with every object at
+  /// its pose and checked: recovered if the check passes.
+  void place(const RgbdFrame& frame, const track_detail::PaddedCamera& pc, const Launch& launch,
+             const SixDofSceneResult& found, TrackResult& result) {
+    State& st = states_[launch.object];
+    if (st.out.state != TrackState::Lost || found.poses.empty() || !found.poses[0].found) return;
+    Pose T = track_detail::rigid(found.poses[0].T_cam_obj);
+    if (launch.frame != frame_) T = track_detail::rigid(motion_since(launch, T) * T);
+    std::vector<Pose> poses;
+    for (const State& other : states_) poses.push_back(other.out.T_cam_obj);
+    poses[launch.object] = T;
+    TrackTimings scratch;
+    for (const TrackRound& round_settings : settings_.rounds)
+      round(frame, round_settings, pc, poses, scratch);
+    hold_turns(frame, poses, scratch);
+    std::vector<TrackedObject> checked(states_.size());
+    check(frame, pc, poses, checked, scratch);
+    if (!passes(st, checked[launch.object], T, poses[launch.object])) return;
+    --st.out.frames_lost;  // settle() counted this frame as lost once already
+    settle(st, checked[launch.object], true, poses[launch.object]);
+    result.objects[launch.object] = st.out;
+  }
+
+  /// Waits for a background search and forgets it (start() again, the tracker destroyed).
+  void drop_search() {
+    if (pending_.valid()) pending_.wait();
+    pending_ = {};
   }
 
   TrackResult step(const RgbdFrame& frame) {
@@ -316,38 +511,21 @@ class Tracker {
     for (const TrackRound& r : s.rounds) round(frame, r, pc, poses, result.timings);
     hold_turns(frame, poses, result.timings);
     std::vector<TrackedObject> checked(states_.size());
-    check(frame, pc, poses, checked, result.timings);
+    const track_detail::Regions regions = check(frame, pc, poses, checked, result.timings);
     // ---- state: tracking objects must pass the check; lost ones must pass recover_ratio of their usual
     // score
     for (std::size_t i = 0; i < states_.size(); ++i) {
       State& st = states_[i];
       const TrackedObject& c = checked[i];
       const bool was_lost = st.out.state == TrackState::Lost;
-      const float usual = st.usual_visible < 0.f ? c.visible_fraction : st.usual_visible;
-      const bool pass = c.segment_points >= s.min_segment_points &&
-                        c.visible_points >= s.min_visible_points &&
-                        c.visible_fraction >= s.min_visible_ratio * usual && c.score >= s.min_score &&
-                        (!was_lost || c.score >= s.recover_ratio * st.usual_score);
-      const Pose T_before = st.out.T_cam_obj;
-      st.out.cost = c.cost, st.out.score = c.score, st.out.visible_fraction = c.visible_fraction;
-      st.out.segment_points = c.segment_points, st.out.visible_points = c.visible_points;
       // A tracked pose refined onto readings is the best guess even when it fails the check; a lost one
       // coasts (refined onto what failed the check, it could wander off onto anything).
       const bool refined = c.segment_points >= s.min_segment_points && !was_lost;
-      st.out.T_cam_obj = pass || refined ? poses[i] : predicted[i];
-      if (pass) {
-        if (!was_lost) st.velocity = track_detail::motion(T_before, poses[i]);  // a lost one keeps its last
-        auto running = [](float mean, float x) { return mean < 0.f ? x : 0.9f * mean + 0.1f * x; };
-        st.usual_visible = running(st.usual_visible, c.visible_fraction);
-        st.usual_score = running(st.usual_score, c.score);
-        st.out.state = was_lost ? TrackState::Recovered : TrackState::Tracking;
-        st.out.frames_lost = 0;
-      } else {
-        st.out.state = TrackState::Lost;
-        ++st.out.frames_lost;
-      }
+      const bool pass = passes(st, c, predicted[i], poses[i]);
+      settle(st, c, pass, pass || refined ? poses[i] : predicted[i]);
       result.objects.push_back(st.out);
     }
+    recover(frame, pc, regions, result);
     result.timings.total = track_detail::seconds_since(t_start);
     last_ = result;
     return result;
@@ -356,6 +534,12 @@ class Tracker {
   std::vector<SixDofModel> models_;
   TrackSettings settings_;
   typename Backend::Renderer renderer_;
+  /// The recovery's search (RecoverySettings); on the heap, so that a background search keeps it while
+  /// the tracker is moved.
+  std::unique_ptr<SixDofEstimator<Backend>> search_;
+  std::future<SixDofSceneResult> pending_;   ///< the background search, if one runs
+  Launch launched_;                          ///< what it was launched with
+  std::vector<float> radius_m_;              ///< per model: the farthest vertex from its origin, metres
   std::vector<std::vector<int>> flat_axes_;  ///< per model: the turns GICP cannot see (track/turn_hold.hpp)
   std::vector<bool> printed_;                ///< per model: whose turns the turn hold holds
   std::vector<State> states_;
