@@ -225,6 +225,12 @@ int main(int argc, char** argv) {
       o.backend = next();
     else if (a == "--fps")
       o.fps = std::stod(next());
+    else if (a == "--search-viewpoints")
+      o.track.recovery.search.proposals.viewpoints = std::stoi(next());
+    else if (a == "--search-depths")
+      o.track.recovery.search.proposals.max_depths = std::stoi(next());
+    else if (a == "--search-inplane")
+      o.track.recovery.search.proposals.inplane_rotations = std::stoi(next());
     else if (a == "--foreground")
       o.track.recovery.background = false;
     else if (a == "--verbose")

@@ -1,6 +1,7 @@
 // perch2 command-line tool.
 //   perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--seed S]    (examples/cli/demo.cpp)
 //   perch2 estimate --mode 3dof --dataset DIR --out FILE.csv [...]  (examples/cli/estimate.cpp)
+//   perch2 track --dataset DIR --out FILE.csv [...]                  (examples/cli/track.cpp)
 //   perch2 render MODEL [--scale S] [--distance M] [--out DIR] [--backend ...]
 //   perch2 eval --dataset DIR --results FILE.csv [...]   (examples/cli/eval.cpp)
 //   perch2 generate --mode 3dof|6dof [--models DIR] --scenes N [--images-per-scene M] --seed S --out DIR
@@ -35,6 +36,8 @@ struct Args {
                "      estimates the 3-DoF poses of built-in objects on a table; writes DIR/overlay.png\n"
                "  perch2 estimate --mode 3dof --dataset DIR --out FILE.csv [--variant V] (--help for more)\n"
                "      estimates the target objects of a BOP dataset, writes BOP results\n"
+               "  perch2 track --dataset DIR --out FILE.csv [--init search|gt] (--help for more)\n"
+               "      tracks the objects of each scene (its images are the frames of a video)\n"
                "  perch2 render MODEL.{obj,ply} [--scale S] [--distance M] [--out DIR] [--backend ...]\n"
                "      renders a model from 8 viewpoints at M metres (S scales the file's units to metres)\n"
                "  perch2 eval --dataset DIR --results FILE.csv [--json OUT] (perch2 eval --help for more)\n"
@@ -136,6 +139,7 @@ int run_render(const Args& a) {
 int main(int argc, char** argv) {
   if (argc > 1 && std::string(argv[1]) == "eval") return run_eval(argc - 1, argv + 1);
   if (argc > 1 && std::string(argv[1]) == "estimate") return run_estimate(argc - 1, argv + 1);
+  if (argc > 1 && std::string(argv[1]) == "track") return run_track(argc - 1, argv + 1);
   if (argc > 1 && std::string(argv[1]) == "demo") return run_demo(argc - 1, argv + 1);
   try {
     if (argc > 1 && std::string(argv[1]) == "generate") return run_generate(argc, argv);

@@ -191,10 +191,12 @@ TEST_CASE("Tracker: an occluder over an object makes it lost, never a confident 
   tracker.start(s.frames[0], starts_at(s, 0));
   // A flat occluder 25 cm in front of object 0 (a hand passing) over frames 10 .. 29.
   int lost = 0, recovered_at = -1, searches = 0;
+  double search_s = 0;
   for (std::size_t f = 1; f < s.frames.size(); ++f) {
     const bool covered = f >= 10 && f < 30;
     const TrackResult r = tracker.update(covered ? occluded(s, f) : s.frames[f]);
     searches += int(r.searched.size());
+    search_s += r.timings.search;
     const TrackedObject& o = r.objects[0];
     const double e = pose_error(o.T_cam_obj, s.gt[f][0], s.models[std::size_t(o.model)]);
     INFO("frame " << f << ": " << std::string(to_string(o.state)) << ", error " << e * 1e3 << " mm, score "
@@ -205,7 +207,8 @@ TEST_CASE("Tracker: an occluder over an object makes it lost, never a confident 
     if (o.state == TrackState::Recovered && recovered_at < 0) recovered_at = int(f);
     CHECK(r.objects[1].state != TrackState::Lost);  // the other object is tracked throughout
   }
-  MESSAGE("lost " << lost << " frames, " << searches << " searches, recovered at frame " << recovered_at);
+  MESSAGE("lost " << lost << " frames, " << searches << " searches (" << search_s
+                  << " s), recovered at frame " << recovered_at);
   CHECK(lost >= 20);
   CHECK(searches > 0);
   CHECK(recovered_at >= 30);

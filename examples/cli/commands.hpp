@@ -16,3 +16,7 @@ int run_estimate(int argc, char** argv);
 
 /// perch2 demo [--out DIR] [--backend cpu|thrust_omp] [--seed S]. Takes the arguments after the command name.
 int run_demo(int argc, char** argv);
+
+/// perch2 track --dataset DIR --out FILE.csv [--scenes A-B] [--init search|gt] (see --help). Takes the
+/// arguments after the command name.
+int run_track(int argc, char** argv);

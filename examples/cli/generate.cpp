@@ -15,7 +15,7 @@ namespace {
 [[noreturn]] void generate_usage(const std::string& error) {
   std::cerr
       << "perch2 generate: " << error
-      << "\nusage: perch2 generate --mode 3dof|6dof [--models DIR] [--model-scale S] --scenes N\n"
+      << "\nusage: perch2 generate --mode 3dof|6dof|video [--models DIR] [--model-scale S] --scenes N\n"
          "                       [--images-per-scene M] [--objects N|MIN-MAX] --seed S --out DIR "
          "[--preview]\n"
          "                       [--decoys] [--targets bop19|bop24]\n"
@@ -23,7 +23,9 @@ namespace {
          "  --decoys: models/ also holds 3 look-alikes of each model (another print, 0.8x the size, other\n"
          "            colours), never placed: a catalogue for 6D detection\n"
          "  --targets bop24: test_targets_bop24.json (images only: 6D detection) instead of _bop19.json\n"
-         "  --preview writes OUT/preview_{rgb,depth,masks}.png for scene 1, image 0\n";
+         "  --preview writes OUT/preview_{rgb,depth,masks}.png for scene 1, image 0\n"
+         "  --mode video: 6-DoF scenes whose images are the frames of a hand-held camera circling the table\n"
+         "                (1.5 deg per frame, shake, bursts of 4 deg per frame) for perch2 track\n";
   std::exit(2);
 }
 
@@ -101,9 +103,14 @@ int run_generate(int argc, char** argv) {
       generate_usage("bad number for " + a + ": " + v);
     }
   }
-  if (mode != "3dof" && mode != "6dof") generate_usage("--mode must be 3dof or 6dof");
+  if (mode != "3dof" && mode != "6dof" && mode != "video")
+    generate_usage("--mode must be 3dof, 6dof or video");
   if (!have_scenes || !have_seed || out.empty()) generate_usage("--scenes, --seed and --out are required");
   settings.scene.mode = mode == "3dof" ? Mode::ThreeDof : Mode::SixDof;
+  if (mode == "video") {
+    settings.video = VideoSettings{};
+    settings.scene.min_distractors = std::max(settings.scene.min_distractors, 1);
+  }
   const std::vector<ObjectModel> models =
       models_dir.empty() ? builtin_models() : load_user_models(models_dir, user);
 

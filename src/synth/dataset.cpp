@@ -98,9 +98,16 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
     std::vector<int> obj_ids;
     for (const auto& o : scene.objects) obj_ids.push_back(models[o.model].obj_id);
     json scene_camera = json::object(), scene_gt = json::object(), scene_gt_info = json::object();
+    std::vector<Pose> path;  // a video's camera path (a stream of its own: not the scene's, not a frame's)
+    if (s.video) {
+      VideoSettings v = *s.video;
+      v.frames = s.images_per_scene;
+      Rng path_rng = Rng::stream(s.seed, std::uint64_t(scene_id), 0xFFFFFFFFull);
+      path = camera_path(s.scene, v, path_rng);
+    }
     for (int im_id = 0; im_id < s.images_per_scene; ++im_id) {
       Rng rng = Rng::stream(s.seed, std::uint64_t(scene_id), std::uint64_t(im_id) + 1);
-      const Pose T_world_cam = sample_camera_pose(s.scene, rng);
+      const Pose T_world_cam = s.video ? path[std::size_t(im_id)] : sample_camera_pose(s.scene, rng);
       const Frame f = renderer.render(T_world_cam, s.sensor, rng);
       const std::string key = std::to_string(im_id), name = id6(im_id);
       io::save_color_image((dir / "rgb" / (name + ".png")).string(), f.rgb);

@@ -8,6 +8,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -15,6 +16,7 @@
 #include "perch2/synth/detections.hpp"
 #include "perch2/synth/scene.hpp"
 #include "perch2/synth/sensor.hpp"
+#include "perch2/synth/video.hpp"
 
 namespace perch2::synth {
 
@@ -37,6 +39,9 @@ struct DatasetSettings {
   SceneSettings scene;
   SensorSettings sensor;
   DetectionSettings detection;
+  /// Set: each scene is a video, its images the frames of a hand-held camera's path around the table
+  /// (camera_path; VideoSettings::frames is images_per_scene) instead of independent viewpoints.
+  std::optional<VideoSettings> video;
 };
 
 /// Per-object counts over the dataset (for the summary table).

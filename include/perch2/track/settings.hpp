@@ -75,7 +75,16 @@ struct RecoverySettings {
   /// by the camera's motion since (from the tracked object nearest to it). false: in update() itself, which
   /// then takes as long as the search (reproducible; tests).
   bool background = true;
-  SixDofSettings search;  ///< the search's settings (SixDofEstimator)
+  /// The search's settings (SixDofEstimator): a sixth of the single-frame search's proposals (20 viewpoints,
+  /// one depth; GICP closes the rest), as a search repeats every few frames and the check rejects what it
+  /// gets wrong: 0.27 s instead of 0.9 s per search at 320 x 240 (tests), and on bench_track (4 sequences,
+  /// one run each) 87 % of object-frames tracked within 2 cm against 85 % with all proposals.
+  SixDofSettings search = [] {
+    SixDofSettings s;
+    s.proposals.viewpoints = 20;
+    s.proposals.max_depths = 1;
+    return s;
+  }();
 };
 
 struct TrackSettings {

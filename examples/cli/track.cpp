@@ -1,0 +1,248 @@
+// perch2 track: the objects of each scene of a BOP dataset followed frame after frame (a scene whose image
+// ids are consecutive frames is a video, as YCB-Video's test scenes), started by perch2's own search or from
+// the ground truth, one BOP CSV row per tracked object per frame.
+#include <algorithm>
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "cli_common.hpp"
+#include "commands.hpp"
+#include "perch2/core/error.hpp"
+#include "perch2/cpu/backend.hpp"
+#include "perch2/cpu/estimators.hpp"
+#include "perch2/cuda/backend.hpp"
+#include "perch2/cuda/estimators.hpp"
+#include "perch2/dataset/bop.hpp"
+#include "perch2/dataset/results.hpp"
+#include "perch2/io/image_io.hpp"
+#include "perch2/search/sixdof.hpp"
+#include "perch2/search/sixdof_bop.hpp"
+#include "perch2/track/tracker.hpp"
+
+using namespace perch2;
+
+namespace {
+
+const char* kUsage =
+    "usage: perch2 track --dataset DIR --out RESULTS.csv [--scenes A-B] [--init search|gt]\n"
+    "                    [--backend thrust_omp|cpu] [--split test] [--targets FILE] [--overlays DIR]\n"
+    "\n"
+    "  Tracks the objects of each scene (its images in id order are the frames of one video) with\n"
+    "  perch2::Tracker. The start: --init search (default) runs the 6-DoF search without masks on the\n"
+    "  scene's first frame, with the objects and counts of its targets (test_targets_bop19.json);\n"
+    "  --init gt starts from the first frame's scene_gt.json (read only then). Writes one BOP CSV row per\n"
+    "  tracked object per frame (score 0 while lost; time = that frame's update, the start's search on the\n"
+    "  first frame), prints per scene the frames lost, losses, recoveries and the update's median and 95th\n"
+    "  percentile, and with --overlays a PNG per frame. Exit status: 0 done, 1 an error, 2 bad usage.\n";
+
+int usage_error(const std::string& message) {
+  std::cerr << "perch2 track: " << message << "\n\n" << kUsage;
+  return 2;
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
+}
+
+/// What one scene's tracking gave.
+struct SceneTally {
+  int frames = 0, lost_frames = 0, losses = 0, recoveries = 0, searches = 0;
+  double start_s = 0;
+  std::vector<double> update_s;
+};
+
+struct Run {
+  const dataset::BopDataset& data;
+  std::string init, overlays;
+  std::map<int, int> model_of;  ///< obj_id -> model index
+  std::vector<int> obj_id_of;   ///< model index -> obj_id
+  std::vector<SixDofModel> models;
+  std::vector<Mesh> meshes;
+};
+
+/// The first frame's starts: the search's poses for the targets' objects, or the ground truth.
+template <class Backend>
+std::vector<TrackStart> starts_for(const Run& run, const dataset::BopImage& image,
+                                   const std::vector<dataset::Target>& targets, double& seconds) {
+  std::vector<TrackStart> out;
+  if (run.init == "gt") {
+    for (const dataset::GtInstance& g : image.info.gt)
+      if (run.model_of.count(g.obj_id)) out.push_back({run.model_of.at(g.obj_id), g.T_cam_obj});
+    return out;
+  }
+  std::vector<SixDofObject> objects;
+  for (const dataset::Target& t : targets)
+    if (run.model_of.count(t.obj_id)) objects.push_back({run.model_of.at(t.obj_id), t.inst_count});
+  static std::unique_ptr<SixDofEstimator<Backend>> estimator;
+  if (!estimator) estimator = std::make_unique<SixDofEstimator<Backend>>(run.models);
+  const auto t0 = track_detail::Clock::now();
+  out = track_starts(estimator->estimate_scene(image.frame, objects));
+  seconds = track_detail::seconds_since(t0);
+  return out;
+}
+
+template <class Backend>
+SceneTally track_scene(const Run& run, Tracker<Backend>& tracker, int scene,
+                       const std::vector<std::pair<int, int>>& images,
+                       const std::map<std::pair<int, int>, std::vector<dataset::Target>>& targets,
+                       dataset::ResultsWriter& writer) {
+  SceneTally tally;
+  std::vector<bool> lost;
+  for (std::size_t f = 0; f < images.size(); ++f) {
+    const int im = images[f].second;
+    if (const dataset::BadImage* bad = run.data.bad_image(scene, im)) {  // a gap in the stream
+      std::fprintf(stderr, "perch2 track: scene %d image %d skipped: %s\n", scene, im,
+                   (bad->path + ": " + bad->reason).c_str());
+      continue;
+    }
+    dataset::ImageLoadOptions load;
+    load.masks_visib = false;
+    const dataset::BopImage image = run.data.load_image(scene, im, load);
+    TrackResult r;
+    double seconds = 0;
+    if (tally.frames == 0) {
+      const auto it = targets.find({scene, im});
+      const std::vector<TrackStart> starts = starts_for<Backend>(
+          run, image, it == targets.end() ? std::vector<dataset::Target>{} : it->second, tally.start_s);
+      if (starts.empty())
+        throw InvalidInput("scene " + std::to_string(scene) + " image " + std::to_string(im),
+                           run.init == "gt" ? "has no ground-truth instance of a known model to start from"
+                                            : "the start's search found none of the target objects");
+      r = tracker.start(image.frame, starts);
+      seconds = tally.start_s + r.timings.total;
+      lost.assign(r.objects.size(), false);
+    } else {
+      r = tracker.update(image.frame);
+      seconds = r.timings.total;
+      tally.update_s.push_back(seconds);
+    }
+    std::vector<dataset::PoseEstimate> rows;
+    std::vector<int> model_of_pose;
+    std::vector<Pose> poses;
+    for (const TrackedObject& o : r.objects) {
+      const bool is_lost = o.state == TrackState::Lost;
+      rows.push_back({scene, im, run.obj_id_of[std::size_t(o.model)], is_lost ? 0.0 : double(o.score),
+                      o.T_cam_obj, seconds, 0});
+      tally.lost_frames += is_lost;
+      tally.losses += is_lost && !lost[std::size_t(o.object)];
+      tally.recoveries += o.state == TrackState::Recovered;
+      lost[std::size_t(o.object)] = is_lost;
+      if (!is_lost) model_of_pose.push_back(o.model), poses.push_back(o.T_cam_obj);
+    }
+    tally.searches += int(r.searched.size());
+    writer.write_image(scene, im, rows);
+    if (!run.overlays.empty() && !image.frame.rgb.empty())
+      io::save_color_image(
+          run.overlays + "/" + dataset::bop_id(scene) + "_" + dataset::bop_id(im) + ".png",
+          cli::draw_overlay(image.frame.rgb, image.frame.camera, run.meshes, model_of_pose, poses));
+    ++tally.frames;
+  }
+  return tally;
+}
+
+template <class Backend>
+int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
+              dataset::ResultsWriter& writer) {
+  const auto targets = dataset::targets_by_image(run.data.targets());
+  std::map<int, std::vector<std::pair<int, int>>> by_scene;
+  for (const auto& key : images) by_scene[key.first].push_back(key);
+  std::vector<double> all_updates;
+  int frames = 0;
+  for (auto& [scene, frames_of_scene] : by_scene) {
+    std::sort(frames_of_scene.begin(), frames_of_scene.end());
+    Tracker<Backend> tracker(run.models);
+    const SceneTally t = track_scene(run, tracker, scene, frames_of_scene, targets, writer);
+    std::printf(
+        "scene %d: %d frames, %zu objects; start %.2f s; lost %d object-frames, %d losses, %d recoveries, "
+        "%d searches; update median %.1f ms, p95 %.1f ms\n",
+        scene, t.frames, tracker.objects().size(), t.start_s, t.lost_frames, t.losses, t.recoveries,
+        t.searches, percentile(t.update_s, 0.5) * 1e3, percentile(t.update_s, 0.95) * 1e3);
+    std::fflush(stdout);
+    all_updates.insert(all_updates.end(), t.update_s.begin(), t.update_s.end());
+    frames += t.frames;
+  }
+  std::printf("perch2 track: %zu scenes, %d frames -> %s (%s; update median %.1f ms, p95 %.1f ms)\n",
+              by_scene.size(), frames, writer.path().c_str(), Backend::name,
+              percentile(all_updates, 0.5) * 1e3, percentile(all_updates, 0.95) * 1e3);
+  return 0;
+}
+
+std::pair<int, int> scene_range(const std::string& s) {
+  try {
+    const auto dash = s.find('-');
+    const int a = std::stoi(s.substr(0, dash));
+    const int b = dash == std::string::npos ? a : std::stoi(s.substr(dash + 1));
+    if (b < a) throw std::invalid_argument(s);
+    return {a, b};
+  } catch (const std::logic_error&) {
+    throw InvalidInput("--scenes", "'" + s + "' is not A-B or A (scene ids, A <= B)");
+  }
+}
+
+}  // namespace
+
+namespace {
+int track_command(int argc, char** argv) {
+  std::string dataset_dir, out, init = "search", backend = "thrust_omp", overlays, scenes;
+  dataset::DatasetOptions options;
+  for (int k = 1; k < argc; ++k) {
+    const std::string a = argv[k];
+    if (a == "-h" || a == "--help") {
+      std::cout << kUsage;
+      return 0;
+    }
+    if (k + 1 >= argc) return usage_error(a + " needs a value");
+    std::string* target = a == "--dataset"    ? &dataset_dir
+                          : a == "--out"      ? &out
+                          : a == "--init"     ? &init
+                          : a == "--backend"  ? &backend
+                          : a == "--overlays" ? &overlays
+                          : a == "--scenes"   ? &scenes
+                          : a == "--split"    ? &options.split
+                          : a == "--targets"  ? &options.targets_file
+                                              : nullptr;
+    if (!target) return usage_error("unknown argument " + a);
+    *target = argv[++k];
+  }
+  if (dataset_dir.empty() || out.empty()) return usage_error("--dataset and --out are required");
+  if (init != "search" && init != "gt") return usage_error("--init must be search or gt");
+  if (backend != "thrust_omp" && backend != "cpu") return usage_error("--backend must be thrust_omp or cpu");
+  if (!std::filesystem::is_directory(dataset_dir))
+    throw FileError(dataset_dir, "is not a directory (expected a BOP dataset root)");
+  const auto [first, last] = scenes.empty() ? std::pair<int, int>{0, 1 << 30} : scene_range(scenes);
+  options.ground_truth = init == "gt";  // never read otherwise
+  const dataset::BopDataset data(dataset_dir, options);
+  if (data.targets_path().empty())
+    throw FileError(dataset_dir, "has no targets file (test_targets_bop19.json or _bop24.json)");
+  for (const std::string& w : data.warnings()) std::fprintf(stderr, "perch2 track: warning: %s\n", w.c_str());
+  const auto images = dataset::run_images(data, first, last);
+  if (images.empty())
+    throw InvalidInput(data.targets_path(),
+                       "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
+  Run run{data, init, overlays, {}, {}, {}, {}};
+  for (const auto& [id, info] : data.models_info()) {
+    run.model_of[id] = int(run.models.size()), run.obj_id_of.push_back(id);
+    run.models.push_back(sixdof_model(data.load_model(id), info));
+    run.meshes.push_back(run.models.back().mesh);
+  }
+  if (!overlays.empty()) std::filesystem::create_directories(overlays);
+  dataset::ResultsWriter writer(out, {false, false});
+  return backend == "cpu" ? track_all<cpu::Backend>(run, images, writer)
+                          : track_all<thrust_omp::Backend>(run, images, writer);
+}
+}  // namespace
+
+int run_track(int argc, char** argv) {
+  try {
+    return track_command(argc, argv);
+  } catch (const std::exception& e) {  // bad files and bad input name the file and the reason
+    std::cerr << "perch2 track: " << e.what() << "\n";
+    return 1;
+  }
+}
