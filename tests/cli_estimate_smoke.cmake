@@ -4,13 +4,7 @@
 # apart, table frame given; a failure means the pipeline or the CLI's conversion of units/frames broke).
 # Usage: cmake -DPERCH2=path/to/perch2 -DWORK_DIR=dir -DMODE=3dof|6dof -P cli_estimate_smoke.cmake
 file(REMOVE_RECURSE ${WORK_DIR})
-function(run)
-  execute_process(COMMAND ${ARGV} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "${ARGV} failed (${rc}):\n${out}\n${err}")
-  endif()
-  set(out "${out}" PARENT_SCOPE)
-endfunction()
+include(${CMAKE_CURRENT_LIST_DIR}/cli_common.cmake)
 run(${PERCH2} generate --mode ${MODE} --scenes 1 --images-per-scene 2 --objects 2 --seed 5 --out ${WORK_DIR}/data)
 run(${PERCH2} estimate --mode ${MODE} --dataset ${WORK_DIR}/data --out ${WORK_DIR}/results.csv --backend cpu
     --overlays ${WORK_DIR}/overlays)

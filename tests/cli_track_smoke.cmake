@@ -5,13 +5,7 @@
 # docs/tracking.md). A failure means the tracker or the CLI's conversion of units/frames broke.
 # Usage: cmake -DPERCH2=path/to/perch2 -DWORK_DIR=dir -P cli_track_smoke.cmake
 file(REMOVE_RECURSE ${WORK_DIR})
-function(run)
-  execute_process(COMMAND ${ARGV} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "${ARGV} failed (${rc}):\n${out}\n${err}")
-  endif()
-  set(out "${out}" PARENT_SCOPE)
-endfunction()
+include(${CMAKE_CURRENT_LIST_DIR}/cli_common.cmake)
 run(${PERCH2} generate --mode video --scenes 1 --images-per-scene 16 --objects 3 --seed 11 --out ${WORK_DIR}/data)
 run(${PERCH2} track --dataset ${WORK_DIR}/data --out ${WORK_DIR}/results.csv --overlays ${WORK_DIR}/overlays)
 message("${out}")

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 #include "perch2/cpu/backend.hpp"
 
@@ -85,6 +87,22 @@ void print_progress(std::FILE* out, int done, int total, double mean_s, double l
                std::string(width - filled, '.').c_str(), done, total, mean_s, last_s);
   if (done == total) std::fprintf(out, "\n");
   std::fflush(out);
+}
+
+std::pair<int, int> parse_scene_range(const std::string& s) {
+  try {
+    const auto dash = s.find('-');
+    std::size_t used = 0;
+    const int a = std::stoi(s.substr(0, dash), &used);
+    if (used != (dash == std::string::npos ? s.size() : dash)) throw std::invalid_argument(s);
+    if (dash == std::string::npos) return {a, a};
+    const std::string rest = s.substr(dash + 1);
+    const int b = std::stoi(rest, &used);
+    if (used != rest.size() || b < a) throw std::invalid_argument(s);
+    return {a, b};
+  } catch (const std::logic_error&) {
+    throw InvalidInput("--scenes", "'" + s + "' is not A-B or A (scene ids, A <= B)");
+  }
 }
 
 }  // namespace perch2::cli

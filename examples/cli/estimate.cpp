@@ -103,22 +103,6 @@ struct Tally {
   }
 };
 
-std::pair<int, int> parse_scene_range(const std::string& s) {
-  try {
-    const auto dash = s.find('-');
-    std::size_t used = 0;
-    const int a = std::stoi(s.substr(0, dash), &used);
-    if (used != (dash == std::string::npos ? s.size() : dash)) throw std::invalid_argument(s);
-    if (dash == std::string::npos) return {a, a};
-    const std::string rest = s.substr(dash + 1);
-    const int b = std::stoi(rest, &used);
-    if (used != rest.size() || b < a) throw std::invalid_argument(s);
-    return {a, b};
-  } catch (const std::logic_error&) {
-    throw InvalidInput("--scenes", "'" + s + "' is not A-B or A (scene ids, A <= B)");
-  }
-}
-
 // The first SIGINT/SIGTERM asks the loop to stop after the current image; a second one kills at once (the
 // CSV is still valid: each image is appended with one write).
 volatile std::sig_atomic_t g_stop_signal = 0;
@@ -170,7 +154,8 @@ int estimate_command(int argc, char** argv) {
   run.backend = dataset::parse_backend(backend);
   run.masks = masks;
   run.box = box == "full" ? BoxKind::Full : BoxKind::Visible;
-  const auto [first, last] = scenes.empty() ? std::pair<int, int>{0, 1 << 30} : parse_scene_range(scenes);
+  const auto [first, last] =
+      scenes.empty() ? std::pair<int, int>{0, 1 << 30} : cli::parse_scene_range(scenes);
 
   options.ground_truth = run.mode == dataset::RunMode::SixDof && masks == "gt";  // never read otherwise
   const dataset::BopDataset data(dataset_dir, options);

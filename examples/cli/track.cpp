@@ -173,18 +173,6 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
   return 0;
 }
 
-std::pair<int, int> scene_range(const std::string& s) {
-  try {
-    const auto dash = s.find('-');
-    const int a = std::stoi(s.substr(0, dash));
-    const int b = dash == std::string::npos ? a : std::stoi(s.substr(dash + 1));
-    if (b < a) throw std::invalid_argument(s);
-    return {a, b};
-  } catch (const std::logic_error&) {
-    throw InvalidInput("--scenes", "'" + s + "' is not A-B or A (scene ids, A <= B)");
-  }
-}
-
 }  // namespace
 
 namespace {
@@ -215,7 +203,8 @@ int track_command(int argc, char** argv) {
   if (backend != "thrust_omp" && backend != "cpu") return usage_error("--backend must be thrust_omp or cpu");
   if (!std::filesystem::is_directory(dataset_dir))
     throw FileError(dataset_dir, "is not a directory (expected a BOP dataset root)");
-  const auto [first, last] = scenes.empty() ? std::pair<int, int>{0, 1 << 30} : scene_range(scenes);
+  const auto [first, last] =
+      scenes.empty() ? std::pair<int, int>{0, 1 << 30} : cli::parse_scene_range(scenes);
   options.ground_truth = init == "gt";  // never read otherwise
   const dataset::BopDataset data(dataset_dir, options);
   if (data.targets_path().empty())
