@@ -29,6 +29,9 @@
 #include "perch2/cuda/backend.hpp"
 
 namespace nb = nanobind;
+namespace perch2 {
+struct SixDofModel;
+}
 
 namespace perch2_py {
 
@@ -229,5 +232,9 @@ void bind_dataset(nb::module_& m);     // BOP reader, detections, results CSV (d
 void bind_estimators(nb::module_& m);  // TabletopEstimator, SixDofEstimator, BOP 6-DoF glue (estimators.cpp)
 void bind_runner(nb::module_& m);      // BopRunner: per-image BOP estimation, either mode (runner.cpp)
 void bind_eval(nb::module_& m);        // evaluation (eval.cpp)
+void bind_track(nb::module_& m);       // Tracker over RGB-D streams (track.cpp)
+
+/// SixDofEstimator's and Tracker's models: perch2.SixDofModel or perch2.Mesh (no symmetries) values.
+std::vector<perch2::SixDofModel> sixdof_models(nb::handle models);
 
 }  // namespace perch2_py

@@ -58,24 +58,6 @@ std::vector<TabletopModel> tabletop_models(nb::handle models) {
   return out;
 }
 
-std::vector<SixDofModel> sixdof_models(nb::handle models) {
-  std::vector<SixDofModel> out;
-  std::size_t k = 0;
-  for (nb::handle item : models) {
-    SixDofModel sm;
-    Mesh mesh;
-    if (nb::try_cast(item, sm, false))
-      out.push_back(std::move(sm));
-    else if (nb::try_cast(item, mesh, false))
-      out.push_back({std::move(mesh), {}});
-    else
-      throw InvalidInput("models[" + std::to_string(k) + "]",
-                         "must be a perch2.Mesh (no symmetries) or a perch2.SixDofModel");
-    ++k;
-  }
-  return out;
-}
-
 /// {model: count} (model an index or a mesh name), or a sequence of (model, count) / ObjectCount.
 std::vector<ObjectCount> object_counts(const PyTabletop& est, nb::handle objects) {
   auto index = [&](nb::handle key, const std::string& who) -> int {
@@ -200,6 +182,24 @@ std::string estimator_doc(const char* file_key, const char* ctor_key, const char
 }
 
 }  // namespace
+
+std::vector<SixDofModel> sixdof_models(nb::handle models) {
+  std::vector<SixDofModel> out;
+  std::size_t k = 0;
+  for (nb::handle item : models) {
+    SixDofModel sm;
+    Mesh mesh;
+    if (nb::try_cast(item, sm, false))
+      out.push_back(std::move(sm));
+    else if (nb::try_cast(item, mesh, false))
+      out.push_back({std::move(mesh), {}});
+    else
+      throw InvalidInput("models[" + std::to_string(k) + "]",
+                         "must be a perch2.Mesh (no symmetries) or a perch2.SixDofModel");
+    ++k;
+  }
+  return out;
+}
 
 void bind_estimators(nb::module_& m) {
   // ---- 3-DoF tabletop

@@ -10,4 +10,5 @@ NB_MODULE(_perch2, m) {
   perch2_py::bind_estimators(m);
   perch2_py::bind_runner(m);
   perch2_py::bind_eval(m);
+  perch2_py::bind_track(m);
 }
