@@ -8,6 +8,7 @@
 
 #include "bop_fixtures.hpp"
 #include "perch2/eval/evaluator.hpp"
+#include "perch2/eval/tracking.hpp"
 #include "perch2/eval/metrics.hpp"
 #include "render_fixtures.hpp"
 #include "test_support.hpp"
@@ -529,4 +530,38 @@ TEST_CASE("Detection: misses, hidden instances, absent objects and symmetries") 
     s.max_estimates_per_image = 0;
     CHECK_THROWS_AS(run_detection(visible_truth(), s), InvalidInput);
   }
+}
+
+TEST_CASE("tracking_summary: losses, recoveries and latency per scene from perch2 track's rows") {
+  using dataset::PoseEstimate;
+  std::vector<PoseEstimate> rows;
+  // Scene 3: two copies of obj 5 and one obj 7 over 5 frames; the second copy of 5 is lost in frames 1-2,
+  // obj 7 from frame 3 to the end. Scene 4: one object lost from its first frame, never found.
+  const double t[] = {2.0, 0.012, 0.015, 0.030, 0.009};
+  for (int im = 0; im < 5; ++im) {
+    rows.push_back({3, im, 5, 0.9, Pose::Identity(), t[im]});
+    rows.push_back({3, im, 5, im == 1 || im == 2 ? 0.0 : 0.8, Pose::Identity(), t[im]});
+    rows.push_back({3, im, 7, im >= 3 ? 0.0 : 0.7, Pose::Identity(), t[im]});
+  }
+  rows.push_back({4, 0, 5, 0.0, Pose::Identity(), 1.0});
+  rows.push_back({4, 1, 5, 0.0, Pose::Identity(), 0.01});
+  const std::vector<eval::SceneTracking> s = eval::tracking_summary(rows);
+  REQUIRE(s.size() == 2);
+  CHECK(s[0].scene_id == 3);
+  CHECK(s[0].frames == 5);
+  CHECK(s[0].objects == 3);
+  CHECK(s[0].lost_frames == 4);
+  CHECK(s[0].losses == 2);
+  CHECK(s[0].recoveries == 1);
+  CHECK(s[0].frames_to_recover == std::vector<int>{2});
+  CHECK(s[0].never_recovered == 1);
+  // The first frame (the start's search) is left out of the latency.
+  REQUIRE(s[0].frame_s.size() == 4);
+  CHECK(eval::quantile(s[0].frame_s, 0.5) == doctest::Approx(0.015));
+  CHECK(s[0].object_s[2] == doctest::Approx(0.010));
+  CHECK(s[1].losses == 1);
+  CHECK(s[1].recoveries == 0);
+  CHECK(s[1].never_recovered == 1);
+  const std::string table = eval::format_tracking(s);
+  CHECK(table.find("\nall ") != std::string::npos);
 }

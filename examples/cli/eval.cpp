@@ -10,19 +10,22 @@
 #include "perch2/dataset/bop.hpp"
 #include "perch2/dataset/results.hpp"
 #include "perch2/eval/evaluator.hpp"
+#include "perch2/eval/tracking.hpp"
 
 namespace {
 
 constexpr const char* kUsage =
     "usage: perch2 eval --dataset DIR --results FILE.csv [--split test] [--targets FILE] [--models DIR]\n"
-    "                   [--json OUT.json] [--plot OUT.png] [--no-vsd] [--vsd-delta-mm D]\n"
+    "                   [--json OUT.json] [--plot OUT.png] [--no-vsd] [--vsd-delta-mm D] [--tracking]\n"
     "  DIR is a BOP dataset root (models/, SPLIT/, test_targets_bop19.json or _bop24.json: then the 6D\n"
     "  detection scores of BOP 2024 too, bop24_mAP); FILE.csv holds BOP results\n"
     "  (scene_id,im_id,obj_id,score,R,t,time; t in mm). --models defaults to models_eval/ if present, else\n"
     "  models/. --no-vsd skips VSD (no rendering, no depth reading): AR = mean(AR_MSSD, AR_MSPD).\n"
     "  --vsd-delta-mm: VSD visibility tolerance (BOP: 15 mm; 5 mm for ITODD, chosen when DIR is named "
     "itodd).\n"
-    "  --plot: precision-recall curves (detection) or accuracy-threshold curves (ADD(-S)) per object.\n";
+    "  --plot: precision-recall curves (detection) or accuracy-threshold curves (ADD(-S)) per object.\n"
+    "  --tracking: FILE.csv is `perch2 track`'s (each scene a video, score 0 = lost): also per scene the\n"
+    "  object-frames lost, losses, recoveries and frames to recover, and the latency per frame and object.\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 eval: " << message << "\n\n" << kUsage;
@@ -33,6 +36,7 @@ int eval_command(int argc, char** argv) {
   std::string dataset_dir, results, json_out, plot_out, delta_mm;
   perch2::dataset::DatasetOptions options;
   perch2::eval::EvalSettings settings;
+  bool tracking = false;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     auto value = [&](std::string& out) {
@@ -53,7 +57,8 @@ int eval_command(int argc, char** argv) {
                     : a == "--models"       ? value(options.models_dir)
                     : a == "--vsd-delta-mm" ? value(delta_mm)
                     : a == "--no-vsd"       ? (settings.compute_vsd = false, true)
-                                      : (std::cerr << "perch2 eval: unknown argument " << a << "\n", false);
+                    : a == "--tracking"     ? (tracking = true, true)
+                                        : (std::cerr << "perch2 eval: unknown argument " << a << "\n", false);
     if (!ok) return usage_error("bad or incomplete argument " + a);
   }
   if (dataset_dir.empty() || results.empty()) return usage_error("--dataset and --results are required");
@@ -85,6 +90,8 @@ int eval_command(int argc, char** argv) {
   };
   const auto report = perch2::eval::evaluate(data, estimates, settings, results, progress);
   std::cout << perch2::eval::format_report(report);
+  if (tracking)
+    std::cout << "tracking:\n" << perch2::eval::format_tracking(perch2::eval::tracking_summary(estimates));
   if (!json_out.empty()) {
     std::ofstream f(json_out);
     f << perch2::eval::report_json(report, settings);
