@@ -158,6 +158,43 @@ TEST_CASE("camera_path: a smooth orbit at the set speed, refused with bad settin
                        InvalidInput);
 }
 
+TEST_CASE("video events: a pushed object moves push_m, an occluder crosses in front of one object") {
+  const auto all = synth::builtin_models();
+  synth::SceneSettings ss;
+  ss.mode = synth::Mode::SixDof;
+  synth::Rng rng(9);
+  const synth::Scene scene = synth::compose_scene(all, ss, rng);
+  synth::VideoSettings v;
+  v.frames = 60, v.push_probability = 1.f, v.occluder_probability = 1.f;
+  const std::vector<Pose> path = synth::camera_path(ss, v, rng);
+  const synth::VideoEvents e = synth::draw_events(scene, v, rng);
+  REQUIRE(e.pushed >= 0);
+  REQUIRE(e.occluded >= 0);
+  const auto moved = [&](int f) {
+    const synth::Scene at = synth::scene_at(scene, e, v, f, path[std::size_t(f)]);
+    return (at.objects[std::size_t(e.pushed)].T_world_obj.translation() -
+            scene.objects[std::size_t(e.pushed)].T_world_obj.translation())
+        .norm();
+  };
+  CHECK(moved(0) < 1e-6f);
+  CHECK(moved(59) == doctest::Approx(v.push_m).epsilon(1e-4));
+  for (int f = 0; f < 60; ++f) {
+    const synth::Scene at = synth::scene_at(scene, e, v, f, path[std::size_t(f)]);
+    const bool crossing = f >= e.occluder_start && f < e.occluder_start + v.occluder_frames;
+    REQUIRE(at.distractors.size() == scene.distractors.size() + (crossing ? 1 : 0));
+    if (!crossing) continue;
+    // Between the camera and the object, within 12 cm of the line of sight.
+    const Eigen::Vector3f eye = path[std::size_t(f)].translation();
+    const Eigen::Vector3f to = at.objects[std::size_t(e.occluded)].T_world_obj.translation() - eye;
+    const Eigen::Vector3f hand = at.distractors.back().T_world_obj.translation() - eye;
+    CHECK(hand.dot(to.normalized()) == doctest::Approx(v.occluder_fraction * to.norm()).epsilon(0.01));
+    CHECK((hand - hand.dot(to.normalized()) * to.normalized()).norm() <= 0.1201f);
+  }
+  v.occluder_fraction = 1.f;
+  CHECK_THROWS_WITH_AS(synth::draw_events(scene, v, rng), doctest::Contains("occluder_fraction"),
+                       InvalidInput);
+}
+
 TEST_CASE_TEMPLATE("Tracker follows a circling camera from the true start within 1 cm", B,
                    PERCH2_TEST_BACKENDS) {
   // A can (printed: its turn is held by the appearance) and a box.

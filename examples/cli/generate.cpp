@@ -25,7 +25,10 @@ namespace {
          "  --targets bop24: test_targets_bop24.json (images only: 6D detection) instead of _bop19.json\n"
          "  --preview writes OUT/preview_{rgb,depth,masks}.png for scene 1, image 0\n"
          "  --mode video: 6-DoF scenes whose images are the frames of a hand-held camera circling the table\n"
-         "                (1.5 deg per frame, shake, bursts of 4 deg per frame) for perch2 track\n";
+         "                (1.5 deg per frame, shake, bursts of 4 deg per frame, its aim swinging 12 cm to "
+         "the\n"
+         "                sides) for perch2 track; in half the scenes an object is pushed 8 cm, in half a\n"
+         "                hand-sized occluder crosses in front of an object (24 frames)\n";
   std::exit(2);
 }
 
@@ -107,8 +110,12 @@ int run_generate(int argc, char** argv) {
     generate_usage("--mode must be 3dof, 6dof or video");
   if (!have_scenes || !have_seed || out.empty()) generate_usage("--scenes, --seed and --out are required");
   settings.scene.mode = mode == "3dof" ? Mode::ThreeDof : Mode::SixDof;
-  if (mode == "video") {
+  if (mode ==
+      "video") {  // the orbit with its events: an object pushed, an occluder, objects leaving the view
     settings.video = VideoSettings{};
+    settings.video->look_at_swing_m = 0.12f;
+    settings.video->push_probability = 0.5f;
+    settings.video->occluder_probability = 0.5f;
     settings.scene.min_distractors = std::max(settings.scene.min_distractors, 1);
   }
   const std::vector<ObjectModel> models =

@@ -98,17 +98,25 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
     std::vector<int> obj_ids;
     for (const auto& o : scene.objects) obj_ids.push_back(models[o.model].obj_id);
     json scene_camera = json::object(), scene_gt = json::object(), scene_gt_info = json::object();
-    std::vector<Pose> path;  // a video's camera path (a stream of its own: not the scene's, not a frame's)
+    // A video: the camera's path and what happens on the table (a stream of its own: not the scene's, not
+    // a frame's).
+    std::vector<Pose> path;
+    VideoEvents events;
+    VideoSettings video;
     if (s.video) {
-      VideoSettings v = *s.video;
-      v.frames = s.images_per_scene;
+      video = *s.video;
+      video.frames = s.images_per_scene;
       Rng path_rng = Rng::stream(s.seed, std::uint64_t(scene_id), 0xFFFFFFFFull);
-      path = camera_path(s.scene, v, path_rng);
+      path = camera_path(s.scene, video, path_rng);
+      events = draw_events(scene, video, path_rng);
     }
+    const bool still = events.pushed < 0 && events.occluded < 0;
     for (int im_id = 0; im_id < s.images_per_scene; ++im_id) {
       Rng rng = Rng::stream(s.seed, std::uint64_t(scene_id), std::uint64_t(im_id) + 1);
       const Pose T_world_cam = s.video ? path[std::size_t(im_id)] : sample_camera_pose(s.scene, rng);
-      const Frame f = renderer.render(T_world_cam, s.sensor, rng);
+      const Scene now = still ? scene : scene_at(scene, events, video, im_id, T_world_cam);
+      const Frame f = still ? renderer.render(T_world_cam, s.sensor, rng)
+                            : SceneRenderer(models, now).render(T_world_cam, s.sensor, rng);
       const std::string key = std::to_string(im_id), name = id6(im_id);
       io::save_color_image((dir / "rgb" / (name + ".png")).string(), f.rgb);
       io::save_depth_png((dir / "depth" / (name + ".png")).string(), f.depth_m,
@@ -122,7 +130,7 @@ DatasetSummary generate_dataset(const std::vector<ObjectModel>& models, const Da
       std::map<int, int> inst_count;
       for (std::size_t k = 0; k < scene.objects.size(); ++k) {
         json gt;
-        put_pose(gt, "cam_R_m2c", "cam_t_m2c", T_world_cam.inverse() * scene.objects[k].T_world_obj);
+        put_pose(gt, "cam_R_m2c", "cam_t_m2c", T_world_cam.inverse() * now.objects[k].T_world_obj);
         gt["obj_id"] = obj_ids[k];
         gts.push_back(gt);
         // Visible part: where this object is the nearest surface (exact, from the noiseless z-buffer).
