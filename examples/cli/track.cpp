@@ -2,11 +2,13 @@
 // ids are consecutive frames is a video, as YCB-Video's test scenes), started by perch2's own search or from
 // the ground truth, one BOP CSV row per tracked object per frame.
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
 #include <iostream>
 #include <map>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "cli_common.hpp"
@@ -30,6 +32,7 @@ namespace {
 const char* kUsage =
     "usage: perch2 track --dataset DIR --out RESULTS.csv [--scenes A-B] [--init search|gt]\n"
     "                    [--backend thrust_omp|cpu] [--split test] [--targets FILE] [--overlays DIR]\n"
+    "                    [--fps F]\n"
     "\n"
     "  Tracks the objects of each scene (its images in id order are the frames of one video) with\n"
     "  perch2::Tracker. The start: --init search (default) runs the 6-DoF search without masks on the\n"
@@ -37,7 +40,9 @@ const char* kUsage =
     "  --init gt starts from the first frame's scene_gt.json (read only then). Writes one BOP CSV row per\n"
     "  tracked object per frame (score 0 while lost; time = that frame's update, the start's search on the\n"
     "  first frame), prints per scene the frames lost, losses, recoveries and the update's median and 95th\n"
-    "  percentile, and with --overlays a PNG per frame. Exit status: 0 done, 1 an error, 2 bad usage.\n";
+    "  percentile, and with --overlays a PNG per frame. Frames are fed at --fps (default 30, as a camera\n"
+    "  gives them: a background recovery search spans the frames it would live; 0: as fast as the tracker\n"
+    "  goes). Exit status: 0 done, 1 an error, 2 bad usage.\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 track: " << message << "\n\n" << kUsage;
@@ -60,6 +65,7 @@ struct SceneTally {
 struct Run {
   const dataset::BopDataset& data;
   std::string init, overlays;
+  double fps = 30;
   std::map<int, int> model_of;  ///< obj_id -> model index
   std::vector<int> obj_id_of;   ///< model index -> obj_id
   std::vector<SixDofModel> models;
@@ -94,6 +100,7 @@ SceneTally track_scene(const Run& run, Tracker<Backend>& tracker, int scene,
                        dataset::ResultsWriter& writer) {
   SceneTally tally;
   std::vector<bool> lost;
+  auto due = std::chrono::steady_clock::now();
   for (std::size_t f = 0; f < images.size(); ++f) {
     const int im = images[f].second;
     if (const dataset::BadImage* bad = run.data.bad_image(scene, im)) {  // a gap in the stream
@@ -115,9 +122,15 @@ SceneTally track_scene(const Run& run, Tracker<Backend>& tracker, int scene,
                            run.init == "gt" ? "has no ground-truth instance of a known model to start from"
                                             : "the start's search found none of the target objects");
       r = tracker.start(image.frame, starts);
+      due = std::chrono::steady_clock::now();
       seconds = tally.start_s + r.timings.total;
       lost.assign(r.objects.size(), false);
     } else {
+      if (run.fps > 0) {  // the next frame arrives 1 / fps after the last one, or now if the tracker is late
+        std::this_thread::sleep_until(due);
+        due = std::max(due, std::chrono::steady_clock::now() - std::chrono::milliseconds(1)) +
+              std::chrono::microseconds(std::int64_t(1e6 / run.fps));
+      }
       r = tracker.update(image.frame);
       seconds = r.timings.total;
       tally.update_s.push_back(seconds);
@@ -177,7 +190,7 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
 
 namespace {
 int track_command(int argc, char** argv) {
-  std::string dataset_dir, out, init = "search", backend = "thrust_omp", overlays, scenes;
+  std::string dataset_dir, out, init = "search", backend = "thrust_omp", overlays, scenes, fps = "30";
   dataset::DatasetOptions options;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -192,6 +205,7 @@ int track_command(int argc, char** argv) {
                           : a == "--backend"  ? &backend
                           : a == "--overlays" ? &overlays
                           : a == "--scenes"   ? &scenes
+                          : a == "--fps"      ? &fps
                           : a == "--split"    ? &options.split
                           : a == "--targets"  ? &options.targets_file
                                               : nullptr;
@@ -214,7 +228,13 @@ int track_command(int argc, char** argv) {
   if (images.empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
-  Run run{data, init, overlays, {}, {}, {}, {}};
+  Run run{data, init, overlays, 30, {}, {}, {}, {}};
+  try {
+    run.fps = std::stod(fps);
+  } catch (const std::logic_error&) {
+    return usage_error("--fps needs a number, got " + fps);
+  }
+  if (!(run.fps >= 0)) return usage_error("--fps must be >= 0");
   for (const auto& [id, info] : data.models_info()) {
     run.model_of[id] = int(run.models.size()), run.obj_id_of.push_back(id);
     run.models.push_back(sixdof_model(data.load_model(id), info));

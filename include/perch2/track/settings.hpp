@@ -117,8 +117,9 @@ struct TrackSettings {
   /// Constant velocity in SE(3): the next pose is the last frame-to-frame motion applied again, scaled by
   /// this (1: all of it; 0: no prediction). In [0, 1].
   float velocity_factor = 1.f;
-  /// A lost object's pose keeps moving with its last velocity for this many frames (a camera moving on
-  /// while an occluder passes), then stays, frames >= 0.
+  /// A lost object's pose moves on with the motion of the tracked object nearest to it (the camera's
+  /// motion, where the scene is still) as long as one is tracked; with none, with its own last motion for
+  /// this many frames, then it stays, frames >= 0.
   int coast_frames = 30;
   /// An object with fewer readings than this in its region is not refined this frame (coasts), >= 3.
   int min_segment_points = 20;

@@ -317,9 +317,10 @@ class Tracker {
   }
 
   /// The motion object i's prediction applies: its own last one while tracked; while lost, that of the
-  /// tracked object nearest to it (the camera's, if the scene around it is still: its own last one was
-  /// measured while it was being hidden), or its own if none is tracked.
-  const Pose& velocity_of(std::size_t i) const {
+  /// tracked object nearest to it (`borrowed`: the camera's, if the scene around it is still; its own last
+  /// one was measured while it was being hidden), or its own if none is tracked.
+  const Pose& velocity_of(std::size_t i, bool& borrowed) const {
+    borrowed = false;
     if (states_[i].out.state != TrackState::Lost) return states_[i].velocity;
     const Pose* out = &states_[i].velocity;
     float nearest = std::numeric_limits<float>::infinity();
@@ -327,7 +328,7 @@ class Tracker {
       if (states_[j].out.state == TrackState::Lost) continue;
       const float d =
           (states_[j].out.T_cam_obj.translation() - states_[i].out.T_cam_obj.translation()).norm();
-      if (d < nearest) nearest = d, out = &states_[j].velocity;
+      if (d < nearest) nearest = d, out = &states_[j].velocity, borrowed = true;
     }
     return *out;
   }
@@ -514,10 +515,13 @@ class Tracker {
     std::vector<Pose> predicted(states_.size()), poses(states_.size());
     for (std::size_t i = 0; i < states_.size(); ++i) {
       const State& st = states_[i];
-      const bool moving = st.out.state != TrackState::Lost || st.out.frames_lost <= s.coast_frames;
-      predicted[i] = moving ? track_detail::rigid(track_detail::scaled(velocity_of(i), s.velocity_factor) *
-                                                  st.out.T_cam_obj)
-                            : st.out.T_cam_obj;
+      bool borrowed = false;
+      const Pose& v = velocity_of(i, borrowed);
+      const bool moving =
+          st.out.state != TrackState::Lost || borrowed || st.out.frames_lost <= s.coast_frames;
+      predicted[i] = moving
+                         ? track_detail::rigid(track_detail::scaled(v, s.velocity_factor) * st.out.T_cam_obj)
+                         : st.out.T_cam_obj;
     }
     poses = predicted;
     result.timings.predict = track_detail::seconds_since(t0);
