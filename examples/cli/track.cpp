@@ -25,6 +25,11 @@
 #include "perch2/search/sixdof_bop.hpp"
 #include "perch2/track/tracker.hpp"
 
+#if PERCH2_CLI_HAVE_VIDEOIO
+#include <opencv2/core.hpp>
+#include <opencv2/videoio.hpp>
+#endif
+
 using namespace perch2;
 
 namespace {
@@ -32,7 +37,7 @@ namespace {
 const char* kUsage =
     "usage: perch2 track --dataset DIR --out RESULTS.csv [--scenes A-B] [--init search|gt]\n"
     "                    [--backend thrust_omp|cpu] [--split test] [--targets FILE] [--overlays DIR]\n"
-    "                    [--fps F]\n"
+    "                    [--fps F] [--video OUT.mp4]\n"
     "\n"
     "  Tracks the objects of each scene (its images in id order are the frames of one video) with\n"
     "  perch2::Tracker. The start: --init search (default) runs the 6-DoF search without masks on the\n"
@@ -40,7 +45,9 @@ const char* kUsage =
     "  --init gt starts from the first frame's scene_gt.json (read only then). Writes one BOP CSV row per\n"
     "  tracked object per frame (score 0 while lost; time = that frame's update, the start's search on the\n"
     "  first frame), prints per scene the frames lost, losses, recoveries and the update's median and 95th\n"
-    "  percentile, and with --overlays a PNG per frame. Frames are fed at --fps (default 30, as a camera\n"
+    "  percentile, with --overlays a PNG per frame and with --video a video of them (one per scene:\n"
+    "  OUT_SCENE.mp4 when there are several; OpenCV's VideoWriter, MPEG-4). Frames are fed at --fps (default "
+    "30, as a camera\n"
     "  gives them: a background recovery search spans the frames it would live; 0: as fast as the tracker\n"
     "  goes). Exit status: 0 done, 1 an error, 2 bad usage.\n";
 
@@ -64,12 +71,55 @@ struct SceneTally {
 
 struct Run {
   const dataset::BopDataset& data;
-  std::string init, overlays;
+  std::string init, overlays, video;
   double fps = 30;
   std::map<int, int> model_of;  ///< obj_id -> model index
   std::vector<int> obj_id_of;   ///< model index -> obj_id
   std::vector<SixDofModel> models;
   std::vector<Mesh> meshes;
+};
+
+/// A video of the overlays (--video), one file per scene when the run has several; nothing without a path.
+class VideoOut {
+ public:
+  VideoOut(const std::string& path, int scene, bool per_scene, double fps) : fps_(fps) {
+    if (path.empty()) return;
+    path_ = path;
+    if (per_scene) {
+      const auto dot = path.rfind('.');
+      path_ = path.substr(0, dot) + "_" + dataset::bop_id(scene) +
+              (dot == std::string::npos ? "" : path.substr(dot));
+    }
+  }
+  void add(const ColorImage& rgb) {
+    if (path_.empty()) return;
+#if PERCH2_CLI_HAVE_VIDEOIO
+    if (!writer_.isOpened()) {
+      writer_.open(path_, cv::VideoWriter::fourcc('m', 'p', '4', 'v'), fps_, cv::Size(rgb.width, rgb.height));
+      if (!writer_.isOpened())
+        throw FileError(
+            path_,
+            "cannot be written (OpenCV's VideoWriter has no MPEG-4 encoder, or the folder is missing)");
+    }
+    cv::Mat bgr(rgb.height, rgb.width, CV_8UC3);
+    for (int v = 0; v < rgb.height; ++v)
+      for (int u = 0; u < rgb.width; ++u) {
+        const Rgb8 c = rgb(u, v);
+        bgr.at<cv::Vec3b>(v, u) = cv::Vec3b(c.b, c.g, c.r);
+      }
+    writer_.write(bgr);
+#else
+    (void)rgb;
+    throw FileError(path_, "cannot be written: this perch2 was built without OpenCV's videoio");
+#endif
+  }
+
+ private:
+  std::string path_;
+  double fps_;
+#if PERCH2_CLI_HAVE_VIDEOIO
+  cv::VideoWriter writer_;
+#endif
 };
 
 /// The first frame's starts: the search's poses for the targets' objects, or the ground truth.
@@ -97,9 +147,10 @@ template <class Backend>
 SceneTally track_scene(const Run& run, Tracker<Backend>& tracker, int scene,
                        const std::vector<std::pair<int, int>>& images,
                        const std::map<std::pair<int, int>, std::vector<dataset::Target>>& targets,
-                       dataset::ResultsWriter& writer) {
+                       dataset::ResultsWriter& writer, bool many_scenes) {
   SceneTally tally;
   std::vector<bool> lost;
+  VideoOut video(run.video, scene, many_scenes, run.fps > 0 ? run.fps : 30);
   auto due = std::chrono::steady_clock::now();
   for (std::size_t f = 0; f < images.size(); ++f) {
     const int im = images[f].second;
@@ -150,10 +201,14 @@ SceneTally track_scene(const Run& run, Tracker<Backend>& tracker, int scene,
     }
     tally.searches += int(r.searched.size());
     writer.write_image(scene, im, rows);
-    if (!run.overlays.empty() && !image.frame.rgb.empty())
-      io::save_color_image(
-          run.overlays + "/" + dataset::bop_id(scene) + "_" + dataset::bop_id(im) + ".png",
-          cli::draw_overlay(image.frame.rgb, image.frame.camera, run.meshes, model_of_pose, poses));
+    if ((!run.overlays.empty() || !run.video.empty()) && !image.frame.rgb.empty()) {
+      const ColorImage overlay =
+          cli::draw_overlay(image.frame.rgb, image.frame.camera, run.meshes, model_of_pose, poses);
+      if (!run.overlays.empty())
+        io::save_color_image(run.overlays + "/" + dataset::bop_id(scene) + "_" + dataset::bop_id(im) + ".png",
+                             overlay);
+      video.add(overlay);
+    }
     ++tally.frames;
   }
   return tally;
@@ -170,7 +225,8 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
   for (auto& [scene, frames_of_scene] : by_scene) {
     std::sort(frames_of_scene.begin(), frames_of_scene.end());
     Tracker<Backend> tracker(run.models);
-    const SceneTally t = track_scene(run, tracker, scene, frames_of_scene, targets, writer);
+    const SceneTally t =
+        track_scene(run, tracker, scene, frames_of_scene, targets, writer, by_scene.size() > 1);
     std::printf(
         "scene %d: %d frames, %zu objects; start %.2f s; lost %d object-frames, %d losses, %d recoveries, "
         "%d searches; update median %.1f ms, p95 %.1f ms\n",
@@ -190,7 +246,7 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
 
 namespace {
 int track_command(int argc, char** argv) {
-  std::string dataset_dir, out, init = "search", backend = "thrust_omp", overlays, scenes, fps = "30";
+  std::string dataset_dir, out, init = "search", backend = "thrust_omp", overlays, scenes, fps = "30", video;
   dataset::DatasetOptions options;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -206,6 +262,7 @@ int track_command(int argc, char** argv) {
                           : a == "--overlays" ? &overlays
                           : a == "--scenes"   ? &scenes
                           : a == "--fps"      ? &fps
+                          : a == "--video"    ? &video
                           : a == "--split"    ? &options.split
                           : a == "--targets"  ? &options.targets_file
                                               : nullptr;
@@ -228,7 +285,7 @@ int track_command(int argc, char** argv) {
   if (images.empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
-  Run run{data, init, overlays, 30, {}, {}, {}, {}};
+  Run run{data, init, overlays, video, 30, {}, {}, {}, {}};
   try {
     run.fps = std::stod(fps);
   } catch (const std::logic_error&) {
