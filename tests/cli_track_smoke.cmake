@@ -40,3 +40,12 @@ endif()
 if(NOT CMAKE_MATCH_1 EQUAL 48 OR NOT CMAKE_MATCH_2 STREQUAL "100.0")
   message(FATAL_ERROR "expected 48 object-frames all within 2 cm ADD-S, got ${CMAKE_MATCH_1}, ${CMAKE_MATCH_2}%")
 endif()
+# The start from the first frame's ground-truth masks (--masks gt) and from a detection file: one row per
+# object per frame as well.
+foreach(masks gt ${WORK_DIR}/data/detections_synth.json)
+  run(${PERCH2} track --dataset ${WORK_DIR}/data --out ${WORK_DIR}/results_masks.csv --masks ${masks} --fps 0)
+  if(NOT out MATCHES "scene 1: 16 frames, [34] objects")
+    message(FATAL_ERROR "--masks ${masks}: expected 16 frames of 3 (or, with a spurious detection, 4) objects:\n${out}")
+  endif()
+endforeach()
+

@@ -19,6 +19,7 @@
 #include "perch2/cuda/backend.hpp"
 #include "perch2/cuda/estimators.hpp"
 #include "perch2/dataset/bop.hpp"
+#include "perch2/dataset/detections.hpp"
 #include "perch2/dataset/results.hpp"
 #include "perch2/io/image_io.hpp"
 #include "perch2/search/sixdof.hpp"
@@ -36,12 +37,16 @@ namespace {
 
 const char* kUsage =
     "usage: perch2 track --dataset DIR --out RESULTS.csv [--scenes A-B] [--init search|gt]\n"
+    "                    [--masks none|gt|DETECTIONS.json]\n"
     "                    [--backend thrust_omp|cpu] [--split test] [--targets FILE] [--overlays DIR]\n"
     "                    [--fps F] [--video OUT.mp4]\n"
     "\n"
     "  Tracks the objects of each scene (its images in id order are the frames of one video) with\n"
-    "  perch2::Tracker. The start: --init search (default) runs the 6-DoF search without masks on the\n"
-    "  scene's first frame, with the objects and counts of its targets (test_targets_bop19.json);\n"
+    "  perch2::Tracker. The start: --init search (default) runs the 6-DoF search on the scene's first\n"
+    "  frame: without masks (--masks none, default) with the objects and counts of its targets\n"
+    "  (test_targets_bop19.json), or on the instances of its ground-truth visible masks (--masks gt) or of "
+    "a\n"
+    "  detection file (BOP COCO-style JSON);\n"
     "  --init gt starts from the first frame's scene_gt.json (read only then). Writes one BOP CSV row per\n"
     "  tracked object per frame (score 0 while lost; time = that frame's update, the start's search on the\n"
     "  first frame), prints per scene the frames lost, losses, recoveries and the update's median and 95th\n"
@@ -71,12 +76,18 @@ struct SceneTally {
 
 struct Run {
   const dataset::BopDataset& data;
-  std::string init, overlays, video;
+  std::string init, masks, overlays, video;
   double fps = 30;
   std::map<int, int> model_of;  ///< obj_id -> model index
   std::vector<int> obj_id_of;   ///< model index -> obj_id
   std::vector<SixDofModel> models;
   std::vector<Mesh> meshes;
+  std::vector<dataset::Detection> detections;  ///< --masks FILE
+  std::map<std::pair<int, int>, std::vector<std::size_t>> detections_by_image;
+  std::vector<std::size_t> detections_of(const dataset::BopImage& image) const {
+    const auto it = detections_by_image.find({image.info.scene_id, image.info.im_id});
+    return it == detections_by_image.end() ? std::vector<std::size_t>{} : it->second;
+  }
 };
 
 /// A video of the overlays (--video), one file per scene when the run has several; nothing without a path.
@@ -132,13 +143,21 @@ std::vector<TrackStart> starts_for(const Run& run, const dataset::BopImage& imag
       if (run.model_of.count(g.obj_id)) out.push_back({run.model_of.at(g.obj_id), g.T_cam_obj});
     return out;
   }
-  std::vector<SixDofObject> objects;
-  for (const dataset::Target& t : targets)
-    if (run.model_of.count(t.obj_id)) objects.push_back({run.model_of.at(t.obj_id), t.inst_count});
   static std::unique_ptr<SixDofEstimator<Backend>> estimator;
   if (!estimator) estimator = std::make_unique<SixDofEstimator<Backend>>(run.models);
   const auto t0 = track_detail::Clock::now();
-  out = track_starts(estimator->estimate_scene(image.frame, objects));
+  if (run.masks == "none") {
+    std::vector<SixDofObject> objects;
+    for (const dataset::Target& t : targets)
+      if (run.model_of.count(t.obj_id)) objects.push_back({run.model_of.at(t.obj_id), t.inst_count});
+    out = track_starts(estimator->estimate_scene(image.frame, objects));
+  } else {
+    const BopInstances in =
+        run.masks == "gt"
+            ? bop_instances_from_gt(image, run.model_of)
+            : bop_instances_from_detections(image, run.detections, run.detections_of(image), run.model_of);
+    if (!in.instances.empty()) out = track_starts(estimator->estimate(image.frame, in.instances));
+  }
   seconds = track_detail::seconds_since(t0);
   return out;
 }
@@ -160,7 +179,7 @@ SceneTally track_scene(const Run& run, Tracker<Backend>& tracker, int scene,
       continue;
     }
     dataset::ImageLoadOptions load;
-    load.masks_visib = false;
+    load.masks_visib = tally.frames == 0 && run.init == "search" && run.masks == "gt";
     const dataset::BopImage image = run.data.load_image(scene, im, load);
     TrackResult r;
     double seconds = 0;
@@ -246,7 +265,8 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
 
 namespace {
 int track_command(int argc, char** argv) {
-  std::string dataset_dir, out, init = "search", backend = "thrust_omp", overlays, scenes, fps = "30", video;
+  std::string dataset_dir, out, init = "search", masks = "none", backend = "thrust_omp", overlays, scenes,
+                                fps = "30", video;
   dataset::DatasetOptions options;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -258,6 +278,7 @@ int track_command(int argc, char** argv) {
     std::string* target = a == "--dataset"    ? &dataset_dir
                           : a == "--out"      ? &out
                           : a == "--init"     ? &init
+                          : a == "--masks"    ? &masks
                           : a == "--backend"  ? &backend
                           : a == "--overlays" ? &overlays
                           : a == "--scenes"   ? &scenes
@@ -276,7 +297,7 @@ int track_command(int argc, char** argv) {
     throw FileError(dataset_dir, "is not a directory (expected a BOP dataset root)");
   const auto [first, last] =
       scenes.empty() ? std::pair<int, int>{0, 1 << 30} : cli::parse_scene_range(scenes);
-  options.ground_truth = init == "gt";  // never read otherwise
+  options.ground_truth = init == "gt" || (init == "search" && masks == "gt");  // never read otherwise
   const dataset::BopDataset data(dataset_dir, options);
   if (data.targets_path().empty())
     throw FileError(dataset_dir, "has no targets file (test_targets_bop19.json or _bop24.json)");
@@ -285,7 +306,11 @@ int track_command(int argc, char** argv) {
   if (images.empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
-  Run run{data, init, overlays, video, 30, {}, {}, {}, {}};
+  Run run{data, init, masks, overlays, video, 30, {}, {}, {}, {}, {}, {}};
+  if (init == "search" && masks != "none" && masks != "gt") {
+    run.detections = dataset::load_detections(masks);
+    run.detections_by_image = dataset::detections_by_image(run.detections);
+  }
   try {
     run.fps = std::stod(fps);
   } catch (const std::logic_error&) {
