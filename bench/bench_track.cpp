@@ -7,12 +7,15 @@
 // camera's stream.
 //
 //   bench_track [--sequences N] [--frames N] [--seed S] [--init gt|search] [--backend cpu|thrust_omp]
-//               [--objects N] [--fps F] [--foreground] [--verbose]
+//               [--objects N] [--fps F] [--foreground] [--reference N] [--verbose]
+// --reference N: after each sequence, the single-frame search (SixDofEstimator::estimate_scene, --masks none
+// with the objects given) on every N-th of its frames, for the latency table against it.
 #include <omp.h>
 
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 #include <string>
 #include <thread>
 #include <vector>
@@ -34,6 +37,7 @@ namespace {
 struct Options {
   int sequences = 2, frames = 90, objects = 5;
   double fps = 30;
+  int reference = 0;  ///< the single-frame search on every reference-th frame (0: not run)
   std::uint64_t seed = 1;
   std::string init = "gt", backend = "thrust_omp", dump;
   bool verbose = false, restart = false;
@@ -57,6 +61,15 @@ double add_or_adds(const Pose& est, const Pose& gt, const synth::ObjectModel& m)
   return sum / double(count);
 }
 
+/// The scene's objects as the search takes them: copies of a model are one object with a count.
+std::vector<SixDofObject> search_objects(const synth::Scene& scene) {
+  std::map<int, int> count;
+  for (const auto& ob : scene.objects) ++count[ob.model];
+  std::vector<SixDofObject> out;
+  for (const auto& [model, n] : count) out.push_back({model, n});
+  return out;
+}
+
 double median_or_0(const std::vector<double>& v) {
   return v.empty() ? 0 : bench::median(v);
 }
@@ -74,7 +87,9 @@ void run(const Options& o) {
     models.push_back({m.mesh, ModelSymmetries::from(m.symmetries.discrete, m.symmetries.continuous)});
   Tracker<Backend> tracker(models, o.track);
   std::unique_ptr<SixDofEstimator<Backend>> estimator;
-  if (o.init == "search") estimator = std::make_unique<SixDofEstimator<Backend>>(models);
+  if (o.init == "search" || o.reference > 0) estimator = std::make_unique<SixDofEstimator<Backend>>(models);
+  std::vector<double> reference_times;
+  int reference_poses = 0, reference_within = 0;
   std::vector<double> all_times;
   int all_frames = 0, all_within = 0, all_adds = 0, confident_wrong = 0, lost_frames = 0;
   int losses = 0, recoveries = 0, searches = 0;
@@ -116,8 +131,7 @@ void run(const Options& o) {
           for (std::size_t k = 0; k < scene.objects.size(); ++k)
             starts.push_back({scene.objects[k].model, gt[k]});
         } else {
-          std::vector<SixDofObject> objects;
-          for (const auto& ob : scene.objects) objects.push_back({ob.model, 1});
+          const std::vector<SixDofObject> objects = search_objects(scene);
           const double t0 = omp_get_wtime();
           const SixDofSceneResult sr = estimator->estimate_scene(frame, objects);
           std::printf("  sequence %d: start search %.2f s, %zu poses\n", seq, omp_get_wtime() - t0,
@@ -184,6 +198,20 @@ void run(const Options& o) {
         "p95 %.1f ms\n",
         seq, scene.objects.size(), frames, 100.0 * within / std::max(frames, 1), median_or_0(times) * 1e3,
         percentile(times, 0.95) * 1e3);
+    for (int f = 0; o.reference > 0 && f < o.frames; f += o.reference) {  // the single-frame search
+      const std::vector<SixDofObject> objects = search_objects(scene);
+      const double t0 = omp_get_wtime();
+      const SixDofSceneResult sr = estimator->estimate_scene(stream[std::size_t(f)], objects);
+      reference_times.push_back(omp_get_wtime() - t0);
+      for (std::size_t k = 0; k < scene.objects.size(); ++k) {
+        const Pose gt = path[std::size_t(f)].inverse() * scene.objects[k].T_world_obj;
+        double best = 1e9;
+        for (const SixDofPose& p : sr.poses)
+          if (p.found && p.model == scene.objects[k].model)
+            best = std::min(best, add_or_adds(p.T_cam_obj, gt, all[std::size_t(p.model)]));
+        ++reference_poses, reference_within += best < 0.02;
+      }
+    }
     all_times.insert(all_times.end(), times.begin(), times.end());
     all_frames += frames, all_within += within, all_adds += adds_ok;
   }
@@ -196,6 +224,16 @@ void run(const Options& o) {
       median_or_0(frames_to_recover), percentile(frames_to_recover, 1.0), searches,
       median_or_0(all_times) * 1e3, percentile(all_times, 0.95) * 1e3, o.fps, bench::cpu_model().c_str(),
       omp_get_max_threads());
+  if (o.reference > 0) {
+    std::printf("\n| per frame, %d objects | median | p95 | object-frames within 2 cm |\n|---|---|---|---|\n",
+                o.objects);
+    std::printf("| tracker update (perch2::Tracker) | %.1f ms | %.1f ms | %.1f %% (tracked) |\n",
+                median_or_0(all_times) * 1e3, percentile(all_times, 0.95) * 1e3,
+                100.0 * all_within / std::max(all_frames, 1));
+    std::printf("| single-frame search (estimate_scene, every %d-th frame) | %.0f ms | %.0f ms | %.1f %% |\n",
+                o.reference, median_or_0(reference_times) * 1e3, percentile(reference_times, 0.95) * 1e3,
+                100.0 * reference_within / std::max(reference_poses, 1));
+  }
 }
 
 }  // namespace
@@ -231,6 +269,8 @@ int main(int argc, char** argv) {
       o.track.recovery.search.proposals.max_depths = std::stoi(next());
     else if (a == "--search-inplane")
       o.track.recovery.search.proposals.inplane_rotations = std::stoi(next());
+    else if (a == "--reference")
+      o.reference = std::stoi(next());
     else if (a == "--foreground")
       o.track.recovery.background = false;
     else if (a == "--verbose")
