@@ -30,10 +30,11 @@ struct Sequence {
   std::vector<int> model;             ///< per object
 };
 
-/// From frame `move_at` on, object 0 stands `move_m` (world frame) from where it was (pushed while hidden).
+/// From frame `move_at` on, object 0 stands `move_m` (world frame) from where it was (pushed while hidden)
+/// and, if `swap_to` (a built-in model) is given, is that model instead (a look-alike put in its place).
 Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, int frames,
                        float degrees_per_frame, int move_at = -1,
-                       const Eigen::Vector3f& move_m = Eigen::Vector3f::Zero()) {
+                       const Eigen::Vector3f& move_m = Eigen::Vector3f::Zero(), int swap_to = -1) {
   Sequence s;
   const auto all = synth::builtin_models();
   for (int id : model_ids) s.models.push_back(all[std::size_t(id)]);
@@ -49,6 +50,10 @@ Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, in
   const synth::Scene scene = synth::compose_scene(s.models, ss, rng);
   synth::Scene moved = scene;
   moved.objects[0].T_world_obj.translation() += move_m;
+  if (swap_to >= 0) {  // after compose_scene: the look-alike is never placed by it
+    moved.objects[0].model = int(s.models.size());
+    s.models.push_back(all[std::size_t(swap_to)]);
+  }
   const synth::SceneRenderer renderer(s.models, scene), moved_renderer(s.models, moved);
   synth::VideoSettings video;
   video.frames = frames, video.degrees_per_frame = degrees_per_frame, video.burst_probability = 0.f;
@@ -284,6 +289,32 @@ TEST_CASE("Tracker: an object moved while hidden is found again by the search (h
     CHECK(recovered_at >= 15);
     if (!background) CHECK(recovered_at < 15 + 30);
     CHECK(searches > 0);
+  }
+}
+
+TEST_CASE("Tracker: a look-alike put in a tracked can's place is not followed") {
+  // A can (cola print) and a box; at frame 10 the can is swapped for the same can with another print
+  // (cherry) at the same pose: the cola can is gone, its pose must not stay confident. Without the swap
+  // (the control) it is tracked throughout.
+  for (const int swap_to : {-1, 1}) {
+    const Sequence s = make_sequence(11, {0, 5}, 24, 1.f, 10, Eigen::Vector3f::Zero(), swap_to);
+    Tracker<thrust_omp::Backend> tracker(sixdof_models(s.models), test_settings());
+    tracker.start(s.frames[0], starts_at(s, 0));
+    int confident_after = 0;
+    for (std::size_t f = 1; f < s.frames.size(); ++f) {
+      const TrackResult r = tracker.update(s.frames[f]);
+      const TrackedObject& o = r.objects[0];
+      INFO("swap " << swap_to << ", frame " << f << ": " << std::string(to_string(o.state)) << ", score "
+                   << o.score << ", colour outliers " << o.cost.rendered_color_outliers << " of "
+                   << o.cost.rendered_points);
+      if (f < 10) CHECK(o.state == TrackState::Tracking);
+      if (f >= 13) confident_after += o.state != TrackState::Lost;
+      CHECK(r.objects[1].state != TrackState::Lost);
+    }
+    if (swap_to < 0)
+      CHECK(confident_after == int(s.frames.size()) - 13);
+    else
+      CHECK(confident_after == 0);
   }
 }
 
