@@ -8,6 +8,7 @@
 #include <cmath>
 #include <vector>
 
+#include "perch2/search/sixdof.hpp"
 #include "perch2/synth/synth.hpp"
 #include "perch2/track/tracker.hpp"
 #include "test_support.hpp"
@@ -224,6 +225,31 @@ TEST_CASE_TEMPLATE("Tracker follows a circling camera from the true start within
     }
   }
   MESSAGE("worst error over 23 frames: " << worst * 1e3 << " mm");
+  CHECK(worst < 0.01);
+}
+
+TEST_CASE("Tracker started by the search (no masks, the objects given) follows within 1 cm") {
+  const Sequence s = make_sequence(11, {0, 5}, 16, 1.5f);
+  const std::vector<SixDofModel> models = sixdof_models(s.models);
+  SixDofEstimator<thrust_omp::Backend> search(models);
+  const SixDofSceneResult found = search.estimate_scene(s.frames[0], {{0, 1}, {1, 1}});
+  REQUIRE(track_starts(found).size() == 2);
+  Tracker<thrust_omp::Backend> tracker(models, test_settings());
+  tracker.start(s.frames[0], track_starts(found));
+  double worst = 0;
+  for (std::size_t f = 1; f < s.frames.size(); ++f) {
+    const TrackResult r = tracker.update(s.frames[f]);
+    for (const TrackedObject& o : r.objects) {
+      // The search's order is its own: each pose against the true pose of its model.
+      std::size_t k = 0;
+      while (s.model[k] != o.model) ++k;
+      const double e = pose_error(o.T_cam_obj, s.gt[f][k], s.models[std::size_t(o.model)]);
+      INFO("frame " << f << " model " << o.model << " error " << e * 1e3 << " mm");
+      CHECK(o.state == TrackState::Tracking);
+      worst = std::max(worst, e);
+    }
+  }
+  MESSAGE("search start: worst error over 15 frames " << worst * 1e3 << " mm");
   CHECK(worst < 0.01);
 }
 
