@@ -8,8 +8,8 @@
 
 #include "bop_fixtures.hpp"
 #include "perch2/eval/evaluator.hpp"
-#include "perch2/eval/tracking.hpp"
 #include "perch2/eval/metrics.hpp"
+#include "perch2/eval/tracking.hpp"
 #include "render_fixtures.hpp"
 #include "test_support.hpp"
 

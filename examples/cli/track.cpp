@@ -21,6 +21,7 @@
 #include "perch2/dataset/bop.hpp"
 #include "perch2/dataset/detections.hpp"
 #include "perch2/dataset/results.hpp"
+#include "perch2/eval/tracking.hpp"
 #include "perch2/io/image_io.hpp"
 #include "perch2/search/sixdof.hpp"
 #include "perch2/search/sixdof_bop.hpp"
@@ -51,20 +52,13 @@ const char* kUsage =
     "  tracked object per frame (score 0 while lost; time = that frame's update, the start's search on the\n"
     "  first frame), prints per scene the frames lost, losses, recoveries and the update's median and 95th\n"
     "  percentile, with --overlays a PNG per frame and with --video a video of them (one per scene:\n"
-    "  OUT_SCENE.mp4 when there are several; OpenCV's VideoWriter, MPEG-4). Frames are fed at --fps (default "
-    "30, as a camera\n"
-    "  gives them: a background recovery search spans the frames it would live; 0: as fast as the tracker\n"
-    "  goes). Exit status: 0 done, 1 an error, 2 bad usage.\n";
+    "  OUT_SCENE.mp4 when there are several; OpenCV's VideoWriter, MPEG-4). Frames are fed at --fps\n"
+    "  (default 30, as a camera gives them: a background recovery search spans the frames it would live;\n"
+    "  0: as fast as the tracker goes). Exit status: 0 done, 1 an error, 2 bad usage.\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 track: " << message << "\n\n" << kUsage;
   return 2;
-}
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, std::size_t(q * double(v.size())))];
 }
 
 /// What one scene's tracking gave.
@@ -250,14 +244,14 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
         "scene %d: %d frames, %zu objects; start %.2f s; lost %d object-frames, %d losses, %d recoveries, "
         "%d searches; update median %.1f ms, p95 %.1f ms\n",
         scene, t.frames, tracker.objects().size(), t.start_s, t.lost_frames, t.losses, t.recoveries,
-        t.searches, percentile(t.update_s, 0.5) * 1e3, percentile(t.update_s, 0.95) * 1e3);
+        t.searches, eval::quantile(t.update_s, 0.5) * 1e3, eval::quantile(t.update_s, 0.95) * 1e3);
     std::fflush(stdout);
     all_updates.insert(all_updates.end(), t.update_s.begin(), t.update_s.end());
     frames += t.frames;
   }
   std::printf("perch2 track: %zu scenes, %d frames -> %s (%s; update median %.1f ms, p95 %.1f ms)\n",
               by_scene.size(), frames, writer.path().c_str(), Backend::name,
-              percentile(all_updates, 0.5) * 1e3, percentile(all_updates, 0.95) * 1e3);
+              eval::quantile(all_updates, 0.5) * 1e3, eval::quantile(all_updates, 0.95) * 1e3);
   return 0;
 }
 
