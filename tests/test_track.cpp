@@ -318,6 +318,36 @@ TEST_CASE("Tracker: an object moved while hidden is found again by the search (h
   }
 }
 
+TEST_CASE("Tracker: an object lost for good does not take every search from one lost later") {
+  // Object 2 is a model that is not on the table (lost from the start, never found). Object 0 is hidden
+  // over frames 4 .. 9 and pushed 7 cm at frame 6 (only the search finds it, here as soon as what shows
+  // of it around the occluder suffices). One search per update, in
+  // turns: object 0 is searched for and recovered (the longest lost first would search object 2 every time).
+  const Sequence s = make_sequence(5, {5, 7}, 30, 0.5f, 6, {0.f, 0.07f, 0.f});
+  std::vector<SixDofModel> models = sixdof_models(s.models);
+  models.push_back(sixdof_models({synth::builtin_models()[3]}).front());
+  TrackSettings ts = test_settings();
+  ts.recovery.per_frame = 1, ts.recovery.every_frames = 1;
+  Tracker<thrust_omp::Backend> tracker(models, ts);
+  std::vector<TrackStart> starts = starts_at(s, 0);
+  starts.push_back({2, s.gt[0][0] * Pose(Eigen::Translation3f(0.f, 0.f, 0.3f))});
+  tracker.start(s.frames[0], starts);
+  int searched_0 = 0, searched_2 = 0, recovered_at = -1;
+  for (std::size_t f = 1; f < s.frames.size() && recovered_at < 0; ++f) {
+    const TrackResult r = tracker.update(f >= 4 && f < 10 ? occluded(s, f) : s.frames[f]);
+    for (const int i : r.searched) (i == 0 ? searched_0 : searched_2) += i == 0 || i == 2;
+    CHECK(r.objects[2].state == TrackState::Lost);
+    const TrackedObject& o = r.objects[0];
+    if (o.state != TrackState::Lost) CHECK(pose_error(o.T_cam_obj, s.gt[f][0], s.models[0]) < 0.02);
+    if (o.state == TrackState::Recovered) recovered_at = int(f);
+  }
+  MESSAGE("searches: object 0 " << searched_0 << ", object 2 " << searched_2
+                                << "; object 0 recovered at frame " << recovered_at);
+  CHECK(searched_2 > 0);
+  CHECK(recovered_at >= 6);  // pushed at frame 6
+  CHECK(recovered_at < 10 + 10);
+}
+
 TEST_CASE("Tracker: a look-alike put in a tracked can's place is not followed") {
   // A can (cola print) and a box; at frame 10 the can is swapped for the same can with another print
   // (cherry) at the same pose: the cola can is gone, its pose must not stay confident. Without the swap

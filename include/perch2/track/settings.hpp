@@ -61,8 +61,8 @@ struct TurnHoldSettings {
 /// run per update and each object waits between its searches; the found pose is refined and checked in
 /// the same frame as a tracked one and is `recovered` only if the check passes the recovery rule.
 struct RecoverySettings {
-  int per_frame = 1;        ///< searches in one update at most (the longest lost first), >= 0 (0: no search)
-  int every_frames = 4;     ///< frames an object waits between its searches, >= 1
+  int per_frame = 1;     ///< searches in one update at most (the longest waiting first), >= 0 (0: no search)
+  int every_frames = 4;  ///< frames an object waits between its searches, >= 1
   int window_searches = 2;  ///< searches in the window before the whole frame is searched, >= 0
   /// The window: a disc around the last pose's projected centre, of radius this times the model's radius
   /// in pixels there plus window_margin_px (the object moved while lost, or was lost because the pose slid).

@@ -181,6 +181,7 @@ class Tracker {
     float usual_visible = -1.f;        ///< running mean of the visible fraction while tracked (-1: none yet)
     float usual_score = -1.f;          ///< running mean of the score while tracked (-1: none yet)
     int next_search = 1;               ///< frames_lost at which it may be searched for again
+    int last_search = -1;              ///< frame of its last search launch (-1: none since it was lost)
   };
 
   static std::vector<Mesh> meshes(const std::vector<SixDofModel>& models) {
@@ -368,7 +369,7 @@ class Tracker {
       st.usual_visible = running(st.usual_visible, c.visible_fraction);
       st.usual_score = running(st.usual_score, c.score);
       st.out.state = was_lost ? TrackState::Recovered : TrackState::Tracking;
-      st.out.frames_lost = 0, st.out.searches = 0, st.next_search = 1;
+      st.out.frames_lost = 0, st.out.searches = 0, st.next_search = 1, st.last_search = -1;
     } else {
       st.out.state = TrackState::Lost;
       ++st.out.frames_lost;
@@ -406,10 +407,10 @@ class Tracker {
     return out;
   }
 
-  /// Searches for the lost objects whose wait is over (RecoverySettings), the longest lost first: in the
-  /// background (one search at a time; its answer is taken by the first update after it finished) or
-  /// here. A found pose is moved into this frame, refined (with every object at its pose) and checked, and
-  /// the object is recovered if the check passes. Changes the states and `result`.
+  /// Searches for the lost objects whose wait is over (RecoverySettings), the one waiting longest since its
+  /// last search first: in the background (one search at a time; its answer is taken by the first update
+  /// after it finished) or here. A found pose is moved into this frame, refined (with every object at its
+  /// pose) and checked, and the object is recovered if the check passes. Changes the states and `result`.
   void recover(const RgbdFrame& frame, const track_detail::PaddedCamera& pc,
                const track_detail::Regions& regions, TrackResult& result) {
     const RecoverySettings& r = settings_.recovery;
@@ -423,14 +424,20 @@ class Tracker {
       if (states_[i].out.state == TrackState::Lost && states_[i].out.frames_lost >= states_[i].next_search &&
           !(pending_.valid() && launched_.object == i))
         due.push_back(i);
-    std::stable_sort(due.begin(), due.end(), [&](std::size_t a, std::size_t b) {
-      return states_[a].out.frames_lost > states_[b].out.frames_lost;
-    });
+    // The one waiting longest since its last search (or since it was lost) first: an object lost for good
+    // must not take every search from one lost later.
+    auto waited = [&](std::size_t i) {
+      const State& st = states_[i];
+      return st.last_search < 0 ? st.out.frames_lost : frame_ - st.last_search;
+    };
+    std::stable_sort(due.begin(), due.end(),
+                     [&](std::size_t a, std::size_t b) { return waited(a) > waited(b); });
     due.resize(std::min(due.size(), std::size_t(r.per_frame)));
     for (const std::size_t i : due) {
       if (pending_.valid()) break;  // one background search at a time
       State& st = states_[i];
       st.next_search = st.out.frames_lost + r.every_frames;
+      st.last_search = frame_;
       ++st.out.searches;
       result.searched.push_back(int(i));
       int readings = 0;
