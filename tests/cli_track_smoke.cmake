@@ -49,11 +49,12 @@ foreach(masks gt ${WORK_DIR}/data/detections_synth.json)
   endif()
 endforeach()
 
-# A test set whose ground truth is withheld (no scene_gt*.json, no masks): the default start never reads it.
+# A test set whose ground truth is withheld (no scene_gt*.json, no masks): the default start never reads it
+# (searches for lost objects in the update: --recovery update).
 file(COPY ${WORK_DIR}/data/ DESTINATION ${WORK_DIR}/no_gt)
 file(GLOB withheld ${WORK_DIR}/no_gt/test/*/scene_gt*.json ${WORK_DIR}/no_gt/test/*/mask ${WORK_DIR}/no_gt/test/*/mask_visib)
 file(REMOVE_RECURSE ${withheld})
-run(${PERCH2} track --dataset ${WORK_DIR}/no_gt --out ${WORK_DIR}/results_no_gt.csv --fps 0)
+run(${PERCH2} track --dataset ${WORK_DIR}/no_gt --out ${WORK_DIR}/results_no_gt.csv --fps 0 --recovery update)
 if(NOT out MATCHES "scene 1: 16 frames, 3 objects")
   message(FATAL_ERROR "without ground truth: expected 16 frames of 3 objects tracked:\n${out}")
 endif()

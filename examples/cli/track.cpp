@@ -40,7 +40,7 @@ const char* kUsage =
     "usage: perch2 track --dataset DIR --out RESULTS.csv [--scenes A-B] [--init search|gt]\n"
     "                    [--masks none|gt|DETECTIONS.json]\n"
     "                    [--backend thrust_omp|cpu] [--split test] [--targets FILE] [--overlays DIR]\n"
-    "                    [--fps F] [--video OUT.mp4]\n"
+    "                    [--fps F] [--video OUT.mp4] [--recovery background|update]\n"
     "\n"
     "  Tracks the objects of each scene (its images in id order are the frames of one video) with\n"
     "  perch2::Tracker. The start: --init search (default) runs the 6-DoF search on the scene's first\n"
@@ -54,7 +54,9 @@ const char* kUsage =
     "  percentile, with --overlays a PNG per frame and with --video a video of them (one per scene:\n"
     "  OUT_SCENE.mp4 when there are several; OpenCV's VideoWriter, MPEG-4). Frames are fed at --fps\n"
     "  (default 30, as a camera gives them: a background recovery search spans the frames it would live;\n"
-    "  0: as fast as the tracker goes). Exit status: 0 done, 1 an error, 2 bad usage.\n";
+    "  0: as fast as the tracker goes). --recovery update runs a lost object's search inside the update\n"
+    "  (reproducible; the update then takes as long as the search). Exit status: 0 done, 1 an error, 2 bad\n"
+    "  usage.\n";
 
 int usage_error(const std::string& message) {
   std::cerr << "perch2 track: " << message << "\n\n" << kUsage;
@@ -72,8 +74,9 @@ struct Run {
   const dataset::BopDataset& data;
   std::string init, masks, overlays, video;
   double fps = 30;
-  std::map<int, int> model_of;  ///< obj_id -> model index
-  std::vector<int> obj_id_of;   ///< model index -> obj_id
+  bool background_search = true;  ///< RecoverySettings::background
+  std::map<int, int> model_of;    ///< obj_id -> model index
+  std::vector<int> obj_id_of;     ///< model index -> obj_id
   std::vector<SixDofModel> models;
   std::vector<Mesh> meshes;
   std::vector<dataset::Detection> detections;  ///< --masks FILE
@@ -237,7 +240,9 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
   int frames = 0;
   for (auto& [scene, frames_of_scene] : by_scene) {
     std::sort(frames_of_scene.begin(), frames_of_scene.end());
-    Tracker<Backend> tracker(run.models);
+    TrackSettings settings;
+    settings.recovery.background = run.background_search;
+    Tracker<Backend> tracker(run.models, settings);
     const SceneTally t =
         track_scene(run, tracker, scene, frames_of_scene, targets, writer, by_scene.size() > 1);
     std::printf(
@@ -260,7 +265,7 @@ int track_all(const Run& run, const std::vector<std::pair<int, int>>& images,
 namespace {
 int track_command(int argc, char** argv) {
   std::string dataset_dir, out, init = "search", masks = "none", backend = "thrust_omp", overlays, scenes,
-                                fps = "30", video;
+                                fps = "30", video, recovery = "background";
   dataset::DatasetOptions options;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -278,6 +283,7 @@ int track_command(int argc, char** argv) {
                           : a == "--scenes"   ? &scenes
                           : a == "--fps"      ? &fps
                           : a == "--video"    ? &video
+                          : a == "--recovery" ? &recovery
                           : a == "--split"    ? &options.split
                           : a == "--targets"  ? &options.targets_file
                                               : nullptr;
@@ -287,6 +293,8 @@ int track_command(int argc, char** argv) {
   if (dataset_dir.empty() || out.empty()) return usage_error("--dataset and --out are required");
   if (init != "search" && init != "gt") return usage_error("--init must be search or gt");
   if (backend != "thrust_omp" && backend != "cpu") return usage_error("--backend must be thrust_omp or cpu");
+  if (recovery != "background" && recovery != "update")
+    return usage_error("--recovery must be background or update");
   if (!std::filesystem::is_directory(dataset_dir))
     throw FileError(dataset_dir, "is not a directory (expected a BOP dataset root)");
   const auto [first, last] =
@@ -300,7 +308,7 @@ int track_command(int argc, char** argv) {
   if (images.empty())
     throw InvalidInput(data.targets_path(),
                        "lists no targets" + (scenes.empty() ? std::string() : " in scenes " + scenes));
-  Run run{data, init, masks, overlays, video, 30, {}, {}, {}, {}, {}, {}};
+  Run run{data, init, masks, overlays, video, 30, recovery == "background", {}, {}, {}, {}, {}, {}};
   if (init == "search" && masks != "none" && masks != "gt") {
     run.detections = dataset::load_detections(masks);
     run.detections_by_image = dataset::detections_by_image(run.detections);
