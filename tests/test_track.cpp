@@ -33,9 +33,11 @@ struct Sequence {
 
 /// From frame `move_at` on, object 0 stands `move_m` (world frame) from where it was (pushed while hidden)
 /// and, if `swap_to` (a built-in model) is given, is that model instead (a look-alike put in its place).
+/// With a non-zero `copy_m`, an untracked copy of object 0 stands copy_m (world frame) from it throughout.
 Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, int frames,
                        float degrees_per_frame, int move_at = -1,
-                       const Eigen::Vector3f& move_m = Eigen::Vector3f::Zero(), int swap_to = -1) {
+                       const Eigen::Vector3f& move_m = Eigen::Vector3f::Zero(), int swap_to = -1,
+                       const Eigen::Vector3f& copy_m = Eigen::Vector3f::Zero()) {
   Sequence s;
   const auto all = synth::builtin_models();
   for (int id : model_ids) s.models.push_back(all[std::size_t(id)]);
@@ -48,7 +50,12 @@ Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, in
   ss.upright_probability = 1.f, ss.lean_probability = 0.f, ss.stack_probability = 0.f;
   ss.camera_min_distance_m = 0.55f, ss.camera_max_distance_m = 0.65f;
   synth::Rng rng(seed);
-  const synth::Scene scene = synth::compose_scene(s.models, ss, rng);
+  synth::Scene scene = synth::compose_scene(s.models, ss, rng);
+  const std::size_t tracked = scene.objects.size();
+  if (!copy_m.isZero()) {
+    scene.objects.push_back(scene.objects[0]);
+    scene.objects.back().T_world_obj.translation() += copy_m;
+  }
   synth::Scene moved = scene;
   moved.objects[0].T_world_obj.translation() += move_m;
   if (swap_to >= 0) {  // after compose_scene: the look-alike is never placed by it
@@ -61,13 +68,14 @@ Sequence make_sequence(std::uint64_t seed, const std::vector<int>& model_ids, in
   const std::vector<Pose> path = synth::camera_path(ss, video, rng);
   synth::SensorSettings sensor;
   sensor.camera = {307.5f, 307.5f, 159.5f, 119.5f, 320, 240};
-  for (const auto& o : scene.objects) s.model.push_back(o.model);
+  for (std::size_t k = 0; k < tracked; ++k) s.model.push_back(scene.objects[k].model);
   for (const Pose& T_world_cam : path) {
     const bool after = move_at >= 0 && int(s.frames.size()) >= move_at;
     const synth::Frame f = (after ? moved_renderer : renderer).render(T_world_cam, sensor, rng);
     s.frames.push_back({f.camera, f.depth_m, f.rgb});
     std::vector<Pose> gt;
-    for (const auto& o : (after ? moved : scene).objects) gt.push_back(T_world_cam.inverse() * o.T_world_obj);
+    for (std::size_t k = 0; k < tracked; ++k)
+      gt.push_back(T_world_cam.inverse() * (after ? moved : scene).objects[k].T_world_obj);
     s.gt.push_back(gt);
   }
   return s;
@@ -318,6 +326,38 @@ TEST_CASE("Tracker: an object moved while hidden is found again by the search (h
   }
 }
 
+TEST_CASE("Tracker: a hidden object is not recovered on a copy of it standing elsewhere") {
+  // An untracked copy of object 0 (a box) stands 20 cm from it; the occluder hides object 0 over frames
+  // 10 .. 29. The search finds the copy, but object 0's place is hidden, not contradicted (no readings
+  // behind it): it stays lost until it shows again. The control (max_jump_m 1 m) takes the copy.
+  const Sequence s = make_sequence(5, {5, 7}, 50, 0.5f, -1, Eigen::Vector3f::Zero(), -1, {0.f, 0.2f, 0.f});
+  for (const float max_jump_m : {0.1f, 1.f}) {
+    TrackSettings ts = test_settings();
+    ts.recovery.max_jump_m = max_jump_m;
+    Tracker<thrust_omp::Backend> tracker(sixdof_models(s.models), ts);
+    tracker.start(s.frames[0], starts_at(s, 0));
+    int wrong = 0, recovered_at = -1;
+    for (std::size_t f = 1; f < s.frames.size(); ++f) {
+      const TrackResult r = tracker.update(f >= 10 && f < 30 ? occluded(s, f) : s.frames[f]);
+      const TrackedObject& o = r.objects[0];
+      const double e = pose_error(o.T_cam_obj, s.gt[f][0], s.models[std::size_t(o.model)]);
+      INFO("max_jump_m " << max_jump_m << ", frame " << f << ": " << std::string(to_string(o.state))
+                         << ", error " << e * 1e3 << " mm");
+      wrong += o.state != TrackState::Lost && e > 0.05;
+      if (o.state == TrackState::Recovered && recovered_at < 0) recovered_at = int(f);
+    }
+    MESSAGE("max_jump_m " << max_jump_m << ": " << wrong << " confident frames > 5 cm off, recovered at "
+                          << recovered_at);
+    if (max_jump_m < 1.f) {
+      CHECK(wrong == 0);
+      CHECK(recovered_at >= 30);
+      CHECK(recovered_at < 30 + 30);
+    } else {
+      CHECK(wrong > 0);  // the copy taken for it: what the rule prevents
+    }
+  }
+}
+
 TEST_CASE("Tracker: an object lost for good does not take every search from one lost later") {
   // Object 2 is a model that is not on the table (lost from the start, never found). Object 0 is hidden
   // over frames 4 .. 9 and pushed 7 cm at frame 6 (only the search finds it, here as soon as what shows
@@ -403,6 +443,10 @@ TEST_CASE("Tracker refuses bad input with the input named") {
   ts = {};
   ts.min_visible_ratio = 1.5f;
   CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("min_visible_ratio"),
+                       InvalidInput);
+  ts = {};
+  ts.recovery.max_jump_m = NAN;
+  CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("recovery.max_jump_m"),
                        InvalidInput);
   // A valid frame after the refused ones still tracks.
   CHECK(tracker.update(s.frames[1]).objects.size() == 1);

@@ -91,3 +91,8 @@ def test_tracker_refuses_bad_input(video):
     bad.min_visible_ratio = 2.0
     with pytest.raises(perch2.InvalidInput, match="min_visible_ratio"):
         perch2.Tracker(models, settings=bad)
+    bad = perch2.TrackSettings()
+    assert bad.recovery.max_jump_m == pytest.approx(0.1)
+    bad.recovery.contradicted_fraction = -0.5
+    with pytest.raises(perch2.InvalidInput, match="contradicted_fraction"):
+        perch2.Tracker(models, settings=bad)

@@ -70,6 +70,11 @@ struct RecoverySettings {
   int window_margin_px = 40;  ///< pixels, >= 0
   /// A window with fewer readings than this is not searched (the object is out of view), >= 1.
   int min_window_readings = 200;
+  /// A pose found farther than this from where the object was lost (its coasted pose) is taken only if
+  /// the frame contradicts that old place: more than contradicted_fraction of what shows of the object
+  /// rendered there has readings behind it (it left; hidden there, it is taken to be there still).
+  float max_jump_m = 0.1f;              ///< metres, > 0
+  float contradicted_fraction = 0.25f;  ///< in [0, 1]
   /// Run the search in a background thread (its OpenMP threads share the cores with the update): the
   /// updates go on at their rate and the answer, found on an earlier frame, is moved into the current one
   /// by the camera's motion since (from the tracked object nearest to it). false: in update() itself, which
@@ -222,6 +227,10 @@ inline void validate(const TrackSettings& s) {
   if (!(std::isfinite(r.window_factor) && r.window_factor >= 0.f))
     throw InvalidInput("TrackSettings::recovery.window_factor", "must be finite and >= 0");
   if (r.window_margin_px < 0) throw InvalidInput("TrackSettings::recovery.window_margin_px", "must be >= 0");
+  if (!(std::isfinite(r.max_jump_m) && r.max_jump_m > 0.f))
+    throw InvalidInput("TrackSettings::recovery.max_jump_m", "must be finite and > 0");
+  if (!(r.contradicted_fraction >= 0.f && r.contradicted_fraction <= 1.f))
+    throw InvalidInput("TrackSettings::recovery.contradicted_fraction", "must be in [0, 1]");
   if (r.min_window_readings < 1)
     throw InvalidInput("TrackSettings::recovery.min_window_readings", "must be >= 1");
 }

@@ -23,7 +23,8 @@
 //            confident answer.
 //   search   a lost object is also searched for (RecoverySettings): the 6-DoF search without masks
 //            over a window around its last pose, later over the whole frame, without the readings of
-//            the objects still tracked; the found pose is refined and checked as above. Few searches per
+//            the objects still tracked; the found pose is refined and checked as above (and, far from
+//            where the object was lost, taken only if the frame shows it left that place). Few searches per
 //            update, spread over frames.
 // The work per frame is bounded by the tracked objects' regions, independent of the catalogue.
 #pragma once
@@ -501,9 +502,29 @@ class Tracker {
     std::vector<TrackedObject> checked(states_.size());
     check(frame, pc, poses, checked, scratch);
     if (!passes(st, checked[launch.object], T, poses[launch.object])) return;
+    if (!left_its_place(frame, pc, launch.object, poses, scratch)) return;
     --st.out.frames_lost;  // settle() counted this frame as lost once already
     settle(st, checked[launch.object], true, poses[launch.object]);
     result.objects[launch.object] = st.out;
+  }
+
+  /// Whether lost object i, found at poses[i], may be recovered there: yes when it is near where it was
+  /// lost (RecoverySettings::max_jump_m from its coasted pose); farther only if the frame shows it is no
+  /// longer at that old place: rendered there, more than contradicted_fraction of what shows of it has
+  /// readings behind it. Hidden there (a hand in front), it is still taken to be there: a search finds
+  /// look-alike surfaces (a plain block on the passing hand) more often than objects carried off unseen.
+  bool left_its_place(const RgbdFrame& frame, const track_detail::PaddedCamera& pc, std::size_t i,
+                      const std::vector<Pose>& poses, TrackTimings& t) const {
+    const RecoverySettings& r = settings_.recovery;
+    const Pose& T_old = states_[i].out.T_cam_obj;
+    if ((poses[i].translation() - T_old.translation()).norm() <= r.max_jump_m) return true;
+    std::vector<Pose> at_old = poses;
+    at_old[i] = T_old;
+    std::vector<TrackedObject> checked(states_.size());
+    check(frame, pc, at_old, checked, t);
+    const TrackedObject& c = checked[i];
+    return c.visible_points >= settings_.min_visible_points &&
+           float(c.cost.rendered_depth_outliers) > r.contradicted_fraction * float(c.visible_points);
   }
 
   /// Waits for a background search and forgets it (start() again, the tracker destroyed).
