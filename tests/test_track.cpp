@@ -445,6 +445,10 @@ TEST_CASE("Tracker refuses bad input with the input named") {
   CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("min_visible_ratio"),
                        InvalidInput);
   ts = {};
+  ts.recovery.refinements = 0;
+  CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("recovery.refinements"),
+                       InvalidInput);
+  ts = {};
   ts.recovery.max_jump_m = NAN;
   CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("recovery.max_jump_m"),
                        InvalidInput);

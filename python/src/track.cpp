@@ -93,6 +93,7 @@ void bind_track(nb::module_& m) {
   PERCH2_RW(rec, RecoverySettings, window_factor);
   PERCH2_RW(rec, RecoverySettings, window_margin_px);
   PERCH2_RW(rec, RecoverySettings, min_window_readings);
+  PERCH2_RW(rec, RecoverySettings, refinements);
   PERCH2_RW(rec, RecoverySettings, max_jump_m);
   PERCH2_RW(rec, RecoverySettings, contradicted_fraction);
   PERCH2_RW(rec, RecoverySettings, background);

@@ -496,8 +496,15 @@ class Tracker {
     for (const State& other : states_) poses.push_back(other.out.T_cam_obj);
     poses[launch.object] = T;
     TrackTimings scratch;
-    for (const TrackRound& round_settings : settings_.rounds)
-      round(frame, round_settings, pc, poses, scratch);
+    // A search's pose can lie 4-9 cm off (one depth, few viewpoints) and the rounds take it to within a few
+    // millimetres in more than one go: refined `refinements` times, and the recovery rule's move is that of
+    // the last (a pose sliding onto something else keeps moving; one that found its object stays).
+    const int refinements = settings_.recovery.refinements;
+    for (int pass = 0; pass < refinements; ++pass) {
+      if (pass + 1 == refinements) T = poses[launch.object];
+      for (const TrackRound& round_settings : settings_.rounds)
+        round(frame, round_settings, pc, poses, scratch);
+    }
     hold_turns(frame, poses, scratch);
     std::vector<TrackedObject> checked(states_.size());
     check(frame, pc, poses, checked, scratch);
