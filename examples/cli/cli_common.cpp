@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iostream>
 #include <stdexcept>
 #include <string>
 
@@ -87,6 +88,11 @@ void print_progress(std::FILE* out, int done, int total, double mean_s, double l
                std::string(width - filled, '.').c_str(), done, total, mean_s, last_s);
   if (done == total) std::fprintf(out, "\n");
   std::fflush(out);
+}
+
+int usage_error(const char* command, const char* usage, const std::string& message) {
+  std::cerr << "perch2 " << command << ": " << message << "\n\n" << usage;
+  return 2;
 }
 
 std::pair<int, int> parse_scene_range(const std::string& s) {

@@ -36,6 +36,10 @@ const char* overlay_color_name(int i);
 /// Progress on one line of `out`: "[#####.....] 3/10 images  2.1 s/image (last 1.9 s)".
 void print_progress(std::FILE* out, int done, int total, double mean_s, double last_s);
 
+/// Bad usage of `perch2 COMMAND`: "perch2 COMMAND: MESSAGE" and the usage text on stderr; returns 2 (the
+/// exit status of bad usage).
+int usage_error(const char* command, const char* usage, const std::string& message);
+
 /// "A-B" or "A" (--scenes: scene ids, A <= B) as {A, B}; InvalidInput naming --scenes otherwise.
 std::pair<int, int> parse_scene_range(const std::string& s);
 

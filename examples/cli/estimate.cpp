@@ -50,8 +50,7 @@ constexpr const char* kUsage =
     "  130/143 interrupted by SIGINT/SIGTERM.\n";
 
 int usage_error(const std::string& message) {
-  std::cerr << "perch2 estimate: " << message << "\n\n" << kUsage;
-  return 2;
+  return cli::usage_error("estimate", kUsage, message);
 }
 
 /// DIR/SCENE_IM.png: the estimated models (poses found) drawn over the image.

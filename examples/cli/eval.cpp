@@ -6,6 +6,7 @@
 #include <iostream>
 #include <string>
 
+#include "cli_common.hpp"
 #include "commands.hpp"
 #include "perch2/dataset/bop.hpp"
 #include "perch2/dataset/results.hpp"
@@ -28,8 +29,7 @@ constexpr const char* kUsage =
     "  object-frames lost, losses, recoveries and frames to recover, and the latency per frame and object.\n";
 
 int usage_error(const std::string& message) {
-  std::cerr << "perch2 eval: " << message << "\n\n" << kUsage;
-  return 2;
+  return perch2::cli::usage_error("eval", kUsage, message);
 }
 
 int eval_command(int argc, char** argv) {

@@ -59,8 +59,7 @@ const char* kUsage =
     "  usage.\n";
 
 int usage_error(const std::string& message) {
-  std::cerr << "perch2 track: " << message << "\n\n" << kUsage;
-  return 2;
+  return cli::usage_error("track", kUsage, message);
 }
 
 /// What one scene's tracking gave.
