@@ -108,7 +108,7 @@ TrackSettings test_settings() {
   TrackSettings t;
   t.render_stride = 2, t.observed_stride = 2;
   t.rounds[0].margin_px = 12, t.rounds[1].margin_px = 4, t.check_margin_px = 4;
-  t.turn_hold.stride = 1;
+  t.turn_hold.stride = 1, t.turn_hold.sweep_stride = 1;
   t.recovery.background = false;  // reproducible: the search's answer is taken in the frame it ran on
   return t;
 }
@@ -388,6 +388,38 @@ TEST_CASE("Tracker: an object lost for good does not take every search from one 
   CHECK(recovered_at < 10 + 10);
 }
 
+TEST_CASE("Tracker: a can started with its print half a turn wrong is turned right by the sweep") {
+  // The search's start on a partly hidden can may face its label the wrong way; the hold climbs a few
+  // degrees a frame and never gets there. The sweep (a whole turn, every sweep_every_frames) turns it
+  // right, and the velocity does not repeat the sweep's turn on the next frame. Control: no sweep. No
+  // recovery search in either (it would find the can again once the wrong print fails the check).
+  const Sequence s = make_sequence(11, {0, 5}, 24, 1.5f);
+  std::size_t can = 0;
+  while (s.model[can] != 0) ++can;
+  const auto axes = track_detail::flat_axes(s.models[0].mesh);
+  REQUIRE(axes.size() == 1);
+  for (const int every : {10, 0}) {
+    TrackSettings ts = test_settings();
+    ts.turn_hold.sweep_every_frames = every;
+    ts.recovery.per_frame = 0;
+    Tracker<thrust_omp::Backend> tracker(sixdof_models(s.models), ts);
+    std::vector<TrackStart> starts = starts_at(s, 0);
+    starts[can].T_cam_obj = track_detail::turned(starts[can].T_cam_obj, axes[0], 2.6f);  // 150 deg
+    tracker.start(s.frames[0], starts);
+    int right = 0;
+    for (std::size_t f = 1; f < s.frames.size(); ++f) {
+      const TrackedObject o = tracker.update(s.frames[f]).objects[can];
+      const double e = pose_error(o.T_cam_obj, s.gt[f][can], s.models[0]);
+      INFO("sweep every " << every << ", frame " << f << ": error " << e * 1e3 << " mm, "
+                          << std::string(to_string(o.state)));
+      right += e < 0.01;
+      if (every > 0) CHECK(e < 0.01);  // swept in the start's frame
+      if (every > 0) CHECK(o.state != TrackState::Lost);
+    }
+    if (every == 0) CHECK(right == 0);
+  }
+}
+
 TEST_CASE("Tracker: a look-alike put in a tracked can's place is not followed") {
   // A can (cola print) and a box; at frame 10 the can is swapped for the same can with another print
   // (cherry) at the same pose: the cola can is gone, its pose must not stay confident. Without the swap
@@ -451,6 +483,14 @@ TEST_CASE("Tracker refuses bad input with the input named") {
   ts = {};
   ts.recovery.max_jump_m = NAN;
   CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("recovery.max_jump_m"),
+                       InvalidInput);
+  ts = {};
+  ts.turn_hold.sweep_turns = 1;
+  CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("turn_hold.sweep_turns"),
+                       InvalidInput);
+  ts = {};
+  ts.turn_hold.sweep_min_gain = -0.1f;
+  CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("turn_hold.sweep_min_gain"),
                        InvalidInput);
   // A valid frame after the refused ones still tracks.
   CHECK(tracker.update(s.frames[1]).objects.size() == 1);

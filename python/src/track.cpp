@@ -84,6 +84,10 @@ void bind_track(nb::module_& m) {
   PERCH2_RW(hold, TurnHoldSettings, stride);
   PERCH2_RW(hold, TurnHoldSettings, min_gain);
   PERCH2_RW(hold, TurnHoldSettings, depth_tolerance_m);
+  PERCH2_RW(hold, TurnHoldSettings, sweep_every_frames);
+  PERCH2_RW(hold, TurnHoldSettings, sweep_turns);
+  PERCH2_RW(hold, TurnHoldSettings, sweep_stride);
+  PERCH2_RW(hold, TurnHoldSettings, sweep_min_gain);
 
   nb::class_<RecoverySettings> rec(m, "RecoverySettings", doc("RecoverySettings"));
   rec.def(nb::init<>());

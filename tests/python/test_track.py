@@ -92,6 +92,11 @@ def test_tracker_refuses_bad_input(video):
     with pytest.raises(perch2.InvalidInput, match="min_visible_ratio"):
         perch2.Tracker(models, settings=bad)
     bad = perch2.TrackSettings()
+    assert bad.turn_hold.sweep_every_frames == 10 and bad.turn_hold.sweep_turns == 36
+    bad.turn_hold.sweep_stride = 0
+    with pytest.raises(perch2.InvalidInput, match="sweep_stride"):
+        perch2.Tracker(models, settings=bad)
+    bad = perch2.TrackSettings()
     assert bad.recovery.max_jump_m == pytest.approx(0.1)
     bad.recovery.contradicted_fraction = -0.5
     with pytest.raises(perch2.InvalidInput, match="contradicted_fraction"):

@@ -53,6 +53,14 @@ struct TurnHoldSettings {
   int stride = 2;           ///< render stride of the comparison, >= 1
   float min_gain = 0.005f;  ///< a turn must raise the appearance correlation by this to be taken, >= 0
   float depth_tolerance_m = 0.01f;  ///< a rendered point is compared where the reading lies this near, metres
+  /// The sweep: a whole turn, for a turn that is wrong by more than the hold can climb (a search's start
+  /// on a partly hidden can, whose print showed little). One tracked object per update, each at most every
+  /// sweep_every_frames (0: never), is turned about its flat axes by 2 pi k / sweep_turns at sweep_stride;
+  /// the best turn is taken if its appearance beats the pose's by sweep_min_gain.
+  int sweep_every_frames = 10;   ///< >= 0
+  int sweep_turns = 36;          ///< >= 2 (every 10 deg; the hold climbs the rest)
+  int sweep_stride = 2;          ///< >= 1
+  float sweep_min_gain = 0.05f;  ///< >= 0
 };
 
 /// How a lost object is found again: the 6-DoF search without masks (SixDofEstimator::estimate_scene with
@@ -170,7 +178,8 @@ struct TrackedObject {
 };
 
 struct TrackTimings {  ///< seconds, wall clock, of one frame
-  double predict = 0, render = 0, region = 0, refine = 0, turn_hold = 0, check = 0, total = 0;
+  double predict = 0, render = 0, region = 0, refine = 0, check = 0, total = 0;
+  double turn_hold = 0;  ///< the turn hold and the turn sweep (TurnHoldSettings)
   double search = 0;  ///< the recovery's searches and the check of what they found
 };
 
@@ -207,6 +216,13 @@ inline void validate(const TrackSettings& s) {
     throw InvalidInput("TrackSettings::turn_hold.min_gain", "must be finite and >= 0");
   if (!positive(s.turn_hold.depth_tolerance_m))
     throw InvalidInput("TrackSettings::turn_hold.depth_tolerance_m", "must be finite and > 0");
+  if (s.turn_hold.sweep_every_frames < 0)
+    throw InvalidInput("TrackSettings::turn_hold.sweep_every_frames", "must be >= 0");
+  if (s.turn_hold.sweep_turns < 2) throw InvalidInput("TrackSettings::turn_hold.sweep_turns", "must be >= 2");
+  if (s.turn_hold.sweep_stride < 1)
+    throw InvalidInput("TrackSettings::turn_hold.sweep_stride", "must be >= 1");
+  if (!(std::isfinite(s.turn_hold.sweep_min_gain) && s.turn_hold.sweep_min_gain >= 0.f))
+    throw InvalidInput("TrackSettings::turn_hold.sweep_min_gain", "must be finite and >= 0");
   if (s.check_margin_px < 0) throw InvalidInput("TrackSettings::check_margin_px", "must be >= 0");
   if (!positive(s.check_depth_gate_m))
     throw InvalidInput("TrackSettings::check_depth_gate_m", "must be finite and > 0");

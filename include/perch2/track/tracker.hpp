@@ -14,6 +14,9 @@
 //            them to the nearest silhouette within a depth gate (perch2/track/region.hpp; only cells near
 //            the objects are visited), hide each render behind readings that are not its own (an
 //            occluder, another object in front), and GICP each object's visible points onto its readings
+//   turns    a printed can's turn about its axis, which GICP cannot see, is held by the appearance
+//            (perch2/track/turn_hold.hpp, +-2 deg a frame) and, one object per frame, each every
+//            sweep_every_frames, swept through a whole turn (a start or recovery facing its label away)
 //   check    rendered at the refined poses, readings assigned tightly, the RGB-D cost: score = the
 //            explained fraction of both clouds (the 6-DoF search's pose_score), visible fraction = the
 //            part of the silhouette (also outside the frame) in view and not hidden
@@ -176,6 +179,7 @@ class Tracker {
   }
 
  private:
+  static constexpr int kNever = -1000000;  ///< a frame long before any
   struct State {
     TrackedObject out;
     Pose velocity = Pose::Identity();  ///< the last frame-to-frame motion, camera frame
@@ -183,6 +187,7 @@ class Tracker {
     float usual_score = -1.f;          ///< running mean of the score while tracked (-1: none yet)
     int next_search = 1;               ///< frames_lost at which it may be searched for again
     int last_search = -1;              ///< frame of its last search launch (-1: none since it was lost)
+    int last_sweep = kNever;           ///< frame of its last turn sweep (TurnHoldSettings)
   };
 
   static std::vector<Mesh> meshes(const std::vector<SixDofModel>& models) {
@@ -288,6 +293,50 @@ class Tracker {
     t.turn_hold += track_detail::seconds_since(t0);
   }
 
+  /// The turn sweep (TurnHoldSettings::sweep_*) of the tracked printed object with a flat axis whose last
+  /// sweep is oldest, if that is sweep_every_frames ago: a whole turn about its flat axes (poses moved).
+  void sweep_turns(const RgbdFrame& frame, std::vector<Pose>& poses, TrackTimings& t) {
+    const TurnHoldSettings& h = settings_.turn_hold;
+    if (h.sweep_every_frames == 0 || frame.rgb.empty()) return;
+    std::size_t best_i = states_.size();
+    for (std::size_t i = 0; i < states_.size(); ++i) {
+      const auto m = std::size_t(states_[i].out.model);
+      if (!printed_[m] || flat_axes_[m].empty() || states_[i].out.state == TrackState::Lost) continue;
+      if (frame_ - states_[i].last_sweep < h.sweep_every_frames) continue;
+      if (best_i == states_.size() || states_[i].last_sweep < states_[best_i].last_sweep) best_i = i;
+    }
+    if (best_i == states_.size()) return;
+    const auto t0 = track_detail::Clock::now();
+    State& st = states_[best_i];
+    st.last_sweep = frame_;
+    std::vector<Hypothesis> batch{{st.out.model, poses[best_i], -1}};
+    for (const int axis : flat_axes_[std::size_t(st.out.model)])
+      for (int k = 1; k < h.sweep_turns; ++k)
+        batch.push_back(
+            {st.out.model,
+             track_detail::turned(poses[best_i], axis, 2.f * 3.14159265f * float(k) / float(h.sweep_turns)),
+             -1});
+    RenderSettings rs;
+    rs.stride = h.sweep_stride;
+    const CloudBatch rendered = renderer_.render(batch, frame.camera, rs);
+    const std::vector<AppearanceSamples> samples = appearance_samples(rendered, frame, h.depth_tolerance_m);
+    PrintVariation variation(frame.camera.width, h.sweep_stride);
+    for (const AppearanceSamples& a : samples) variation.add(a);
+    const float own = appearance_score(samples[0], &variation).ncc;
+    float best = own + h.sweep_min_gain;
+    std::size_t chosen = 0;
+    for (std::size_t b = 1; b < batch.size(); ++b)
+      if (const float a = appearance_score(samples[b], &variation).ncc; a > best) best = a, chosen = b;
+    if (chosen > 0) {
+      // A correction of the estimate, not a motion: the last pose turns with it, so that the velocity
+      // (settle) does not repeat the turn on the next frame.
+      st.out.T_cam_obj.linear() =
+          st.out.T_cam_obj.linear() * (poses[best_i].linear().transpose() * batch[chosen].T_cam_obj.linear());
+      poses[best_i] = batch[chosen].T_cam_obj;
+    }
+    t.turn_hold += track_detail::seconds_since(t0);
+  }
+
   /// The check at `poses`: per object its cost, score, visible fraction and readings. Returns the check's
   /// assignment of the readings.
   track_detail::Regions check(const RgbdFrame& frame, const track_detail::PaddedCamera& pc,
@@ -371,6 +420,7 @@ class Tracker {
       st.usual_score = running(st.usual_score, c.score);
       st.out.state = was_lost ? TrackState::Recovered : TrackState::Tracking;
       st.out.frames_lost = 0, st.out.searches = 0, st.next_search = 1, st.last_search = -1;
+      if (was_lost) st.last_sweep = kNever;  // a search's or a coasted pose's turn: swept first
     } else {
       st.out.state = TrackState::Lost;
       ++st.out.frames_lost;
@@ -564,6 +614,9 @@ class Tracker {
     const track_detail::PaddedCamera pc(frame.camera, s.render_stride);
     for (const TrackRound& r : s.rounds) round(frame, r, pc, poses, result.timings);
     hold_turns(frame, poses, result.timings);
+    // Not in the frame that takes a background search's answer (its refinements are this frame's work).
+    if (!(pending_.valid() && pending_.wait_for(std::chrono::seconds(0)) == std::future_status::ready))
+      sweep_turns(frame, poses, result.timings);
     std::vector<TrackedObject> checked(states_.size());
     const track_detail::Regions regions = check(frame, pc, poses, checked, result.timings);
     // ---- state: tracking objects must pass the check; lost ones must pass recover_ratio of their usual
