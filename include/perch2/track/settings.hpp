@@ -184,7 +184,7 @@ struct TrackedObject {
 struct TrackTimings {  ///< seconds, wall clock, of one frame
   double predict = 0, render = 0, region = 0, refine = 0, check = 0, total = 0;
   double turn_hold = 0;  ///< the turn hold and the turn sweep (TurnHoldSettings)
-  double search = 0;  ///< the recovery's searches and the check of what they found
+  double search = 0;     ///< the recovery's searches and the check of what they found
 };
 
 struct TrackResult {
