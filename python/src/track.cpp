@@ -119,8 +119,10 @@ void bind_track(nb::module_& m) {
   PERCH2_RW(ts, TrackSettings, min_score);
   PERCH2_RW(ts, TrackSettings, min_visible_ratio);
   PERCH2_RW(ts, TrackSettings, min_visible_points);
+  PERCH2_RW(ts, TrackSettings, min_appearance);
   PERCH2_RW(ts, TrackSettings, recover_ratio);
   PERCH2_RW(ts, TrackSettings, max_recovery_move_m);
+  PERCH2_RW(ts, TrackSettings, max_track_move_m);
   PERCH2_RW(ts, TrackSettings, max_recovery_turn_rad);
   PERCH2_RW(ts, TrackSettings, recovery);
 
@@ -135,6 +137,7 @@ void bind_track(nb::module_& m) {
   PERCH2_RO(to, TrackedObject, segment_points);
   PERCH2_RO(to, TrackedObject, frames_lost);
   PERCH2_RO(to, TrackedObject, searches);
+  PERCH2_RO(to, TrackedObject, appearance);
   PERCH2_RO(to, TrackedObject, cost);
   to.def("__repr__", [](const TrackedObject& o) {
     return "TrackedObject(object=" + std::to_string(o.object) + ", model=" + std::to_string(o.model) +

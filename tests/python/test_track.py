@@ -61,6 +61,7 @@ def test_tracker_settings_and_starts(video):
     g = image.info.gt[0]
     r = tracker.start(image.frame, [(ids.index(g.obj_id), g.T_cam_obj)])
     assert len(r.objects) == 1 and r.objects[0].state == perch2.TrackState.Tracking
+    assert -1.0 <= r.objects[0].appearance <= 1.0
     start = perch2.TrackStart(ids.index(g.obj_id), g.T_cam_obj)
     assert tracker.start(image.frame, [start]).objects[0].model == ids.index(g.obj_id)
 
@@ -95,6 +96,11 @@ def test_tracker_refuses_bad_input(video):
     assert bad.turn_hold.sweep_every_frames == 10 and bad.turn_hold.sweep_turns == 36
     bad.turn_hold.sweep_stride = 0
     with pytest.raises(perch2.InvalidInput, match="sweep_stride"):
+        perch2.Tracker(models, settings=bad)
+    bad = perch2.TrackSettings()
+    assert bad.min_appearance == pytest.approx(0.1) and bad.max_track_move_m == pytest.approx(0.06)
+    bad.min_appearance = -2.0
+    with pytest.raises(perch2.InvalidInput, match="min_appearance"):
         perch2.Tracker(models, settings=bad)
     bad = perch2.TrackSettings()
     assert bad.recovery.max_jump_m == pytest.approx(0.1)

@@ -20,7 +20,9 @@
 //   check    rendered at the refined poses, readings assigned tightly, the RGB-D cost: score = the
 //            explained fraction of both clouds (the 6-DoF search's pose_score), visible fraction = the
 //            part of the silhouette (also outside the frame) in view and not hidden
-//   state    a check below min_score or min_visible_fraction makes the object lost: its pose coasts
+//   state    a check below min_score, min_visible_fraction or min_appearance (a printed object's print
+//            against the frame's colours; a can is swept through a whole turn first), or a tracked pose
+//            moved more than max_track_move_m from its prediction, makes the object lost: its pose coasts
 //            with its last velocity (coast_frames), is refined from there every frame and is recovered
 //            when a check passes recover_ratio of its usual score. A lost pose is a prediction, never a
 //            confident answer.
@@ -297,15 +299,25 @@ class Tracker {
   /// sweep is oldest, if that is sweep_every_frames ago: a whole turn about its flat axes (poses moved).
   void sweep_turns(const RgbdFrame& frame, std::vector<Pose>& poses, TrackTimings& t) {
     const TurnHoldSettings& h = settings_.turn_hold;
-    if (h.sweep_every_frames == 0 || frame.rgb.empty()) return;
     std::size_t best_i = states_.size();
     for (std::size_t i = 0; i < states_.size(); ++i) {
-      const auto m = std::size_t(states_[i].out.model);
-      if (!printed_[m] || flat_axes_[m].empty() || states_[i].out.state == TrackState::Lost) continue;
-      if (frame_ - states_[i].last_sweep < h.sweep_every_frames) continue;
+      if (!sweepable(frame, i) || frame_ - states_[i].last_sweep < h.sweep_every_frames) continue;
       if (best_i == states_.size() || states_[i].last_sweep < states_[best_i].last_sweep) best_i = i;
     }
-    if (best_i == states_.size()) return;
+    if (best_i < states_.size()) sweep(frame, poses, best_i, t);
+  }
+
+  /// Whether object i may be swept: a tracked printed object with a flat axis, sweeps on, a colour frame.
+  bool sweepable(const RgbdFrame& frame, std::size_t i) const {
+    const auto m = std::size_t(states_[i].out.model);
+    return settings_.turn_hold.sweep_every_frames > 0 && !frame.rgb.empty() && printed_[m] &&
+           !flat_axes_[m].empty() && states_[i].out.state != TrackState::Lost;
+  }
+
+  /// Object i turned through a whole turn about its flat axes; the best turn is taken if its appearance
+  /// beats the pose's by sweep_min_gain (poses[i] and the last pose moved).
+  void sweep(const RgbdFrame& frame, std::vector<Pose>& poses, std::size_t best_i, TrackTimings& t) {
+    const TurnHoldSettings& h = settings_.turn_hold;
     const auto t0 = track_detail::Clock::now();
     State& st = states_[best_i];
     st.last_sweep = frame_;
@@ -355,8 +367,10 @@ class Tracker {
       for (std::size_t c = 0; c < states_.size(); ++c) request.add(std::int32_t(c));
       costs = cost.evaluate(visible, request, settings_.cost).hypotheses;
     }
+    const std::vector<AppearanceScore> prints = print_agreement(frame, poses);
     for (std::size_t c = 0; c < states_.size(); ++c) {
       out[c].cost = costs[c];
+      out[c].appearance = prints[c].ncc;
       out[c].segment_points = int(targets.cloud_size(c));
       out[c].score = targets.cloud_size(c) > 0 ? sixdof_detail::pose_score(costs[c]) : 0.f;
       const int all = regions.rendered_points(c);
@@ -365,6 +379,31 @@ class Tracker {
     }
     t.check += track_detail::seconds_since(t0);
     return regions;
+  }
+
+  /// Per object: its rendered print's correlation with the frame (unweighted, at TurnHoldSettings::stride);
+  /// none for unprinted models or a frame without colour.
+  std::vector<AppearanceScore> print_agreement(const RgbdFrame& frame, const std::vector<Pose>& poses) const {
+    std::vector<AppearanceScore> out(states_.size());
+    if (frame.rgb.empty()) return out;
+    std::vector<Hypothesis> batch;
+    std::vector<std::size_t> which;
+    for (std::size_t i = 0; i < states_.size(); ++i)
+      if (printed_[std::size_t(states_[i].out.model)])
+        batch.push_back({states_[i].out.model, poses[i], -1}), which.push_back(i);
+    if (batch.empty()) return out;
+    RenderSettings rs;
+    rs.stride = settings_.turn_hold.stride;
+    const std::vector<AppearanceScore> scores = appearance_scores(
+        renderer_.render(batch, frame.camera, rs), frame, settings_.turn_hold.depth_tolerance_m);
+    for (std::size_t k = 0; k < which.size(); ++k) out[which[k]] = scores[k];
+    return out;
+  }
+
+  /// Whether check `c` finds the print against the frame (TrackSettings::min_appearance; 0: nothing
+  /// compared).
+  bool print_disagrees(const TrackedObject& c) const {
+    return c.appearance != 0.f && c.appearance < settings_.min_appearance;
   }
 
   /// The motion object i's prediction applies: its own last one while tracked; while lost, that of the
@@ -391,19 +430,22 @@ class Tracker {
     return out;
   }
 
-  /// The lost rule (TrackSettings): does check `c` of `st` (at `T`) pass?
-  /// A lost object must also reach recover_ratio of its usual score and have moved little in the rounds
-  /// (from `T_from` to `T`; max_recovery_move_m).
+  /// The lost rule (TrackSettings): does check `c` of `st` (at `T`, refined from `T_from`) pass? A tracked
+  /// object must not have moved more than max_track_move_m in the rounds; a lost one must also reach
+  /// recover_ratio of its usual score and have moved little (max_recovery_move_m, _turn_rad).
   bool passes(const State& st, const TrackedObject& c, const Pose& T_from, const Pose& T) const {
     const TrackSettings& s = settings_;
     const float usual = st.usual_visible < 0.f ? c.visible_fraction : st.usual_visible;
-    const bool checked = c.segment_points >= s.min_segment_points &&
-                         c.visible_points >= s.min_visible_points &&
-                         c.visible_fraction >= s.min_visible_ratio * usual && c.score >= s.min_score;
-    if (!checked || st.out.state != TrackState::Lost) return checked;
-    const Pose m = track_detail::motion(T_from, T);
-    return c.score >= s.recover_ratio * st.usual_score && m.translation().norm() <= s.max_recovery_move_m &&
-           Eigen::AngleAxisf(m.linear()).angle() <= s.max_recovery_turn_rad;
+    const bool checked =
+        c.segment_points >= s.min_segment_points && c.visible_points >= s.min_visible_points &&
+        c.visible_fraction >= s.min_visible_ratio * usual && c.score >= s.min_score && !print_disagrees(c);
+    // The move of the object's origin, not the camera-frame motion's translation: a 3 deg turn about the
+    // object's own centre is a 4.5 cm "motion" at 0.9 m from the camera.
+    const float moved_m = (T.translation() - T_from.translation()).norm();
+    if (!checked || st.out.state != TrackState::Lost) return checked && moved_m <= s.max_track_move_m;
+    const float turned_rad = Eigen::AngleAxisf(T.linear() * T_from.linear().transpose()).angle();
+    return c.score >= s.recover_ratio * st.usual_score && moved_m <= s.max_recovery_move_m &&
+           turned_rad <= s.max_recovery_turn_rad;
   }
 
   /// `st` after check `c`: tracking (or recovered) at `T` if it passed, else lost at `T`.
@@ -412,6 +454,7 @@ class Tracker {
     const Pose T_before = st.out.T_cam_obj;
     st.out.cost = c.cost, st.out.score = c.score, st.out.visible_fraction = c.visible_fraction;
     st.out.segment_points = c.segment_points, st.out.visible_points = c.visible_points;
+    st.out.appearance = c.appearance;
     st.out.T_cam_obj = T;
     if (pass) {
       if (!was_lost) st.velocity = track_detail::motion(T_before, T);  // a lost one keeps its last
@@ -618,7 +661,13 @@ class Tracker {
     if (!(pending_.valid() && pending_.wait_for(std::chrono::seconds(0)) == std::future_status::ready))
       sweep_turns(frame, poses, result.timings);
     std::vector<TrackedObject> checked(states_.size());
-    const track_detail::Regions regions = check(frame, pc, poses, checked, result.timings);
+    track_detail::Regions regions = check(frame, pc, poses, checked, result.timings);
+    // A tracked can or bottle whose print disagrees may be turned wrong: swept now, and checked again.
+    bool swept = false;
+    for (std::size_t i = 0; i < states_.size(); ++i)
+      if (sweepable(frame, i) && print_disagrees(checked[i]) && states_[i].last_sweep != frame_)
+        sweep(frame, poses, i, result.timings), swept = true;
+    if (swept) regions = check(frame, pc, poses, checked, result.timings);
     // ---- state: tracking objects must pass the check; lost ones must pass recover_ratio of their usual
     // score
     for (std::size_t i = 0; i < states_.size(); ++i) {
@@ -627,7 +676,8 @@ class Tracker {
       const bool was_lost = st.out.state == TrackState::Lost;
       // A tracked pose refined onto readings is the best guess even when it fails the check; a lost one
       // coasts (refined onto what failed the check, it could wander off onto anything).
-      const bool refined = c.segment_points >= s.min_segment_points && !was_lost;
+      const bool refined = c.segment_points >= s.min_segment_points && !was_lost &&
+                           (poses[i].translation() - predicted[i].translation()).norm() <= s.max_track_move_m;
       const bool pass = passes(st, c, predicted[i], poses[i]);
       settle(st, c, pass, pass || refined ? poses[i] : predicted[i]);
       result.objects.push_back(st.out);
