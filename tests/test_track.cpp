@@ -156,6 +156,26 @@ TEST_CASE("without_turn drops the move's turn about the model axis and keeps its
   CHECK((track_detail::without_turn(T, tilt, 2).matrix() - tilt.matrix()).norm() < 1e-5f);
 }
 
+TEST_CASE("thinned keeps at most max_points of each cloud, evenly, and every point with 0") {
+  CloudBatch b;
+  for (const int n : {10, 3, 0, 7}) {
+    for (int i = 0; i < n; ++i) {
+      b.x.push_back(float(i)), b.y.push_back(0.f), b.z.push_back(1.f);
+      b.rgb.push_back(0u), b.pixel.push_back(i), b.cloud.push_back(std::int32_t(b.num_clouds()));
+    }
+    b.offsets.push_back(std::int64_t(b.size()));
+  }
+  const CloudBatch t = track_detail::thinned(b, 4);
+  t.validate("thinned");
+  REQUIRE(t.num_clouds() == 4);
+  CHECK(t.cloud_size(0) == 4);  // every 3rd of 10: 0 3 6 9
+  CHECK(t.x[std::size_t(t.offsets[0]) + 3] == 9.f);
+  CHECK(t.cloud_size(1) == 3);
+  CHECK(t.cloud_size(2) == 0);
+  CHECK(t.cloud_size(3) == 4);  // every 2nd of 7
+  CHECK(track_detail::thinned(b, 0).size() == b.size());
+}
+
 TEST_CASE("camera_path: a smooth orbit at the set speed, refused with bad settings") {
   synth::SceneSettings ss;
   synth::VideoSettings v;
@@ -566,6 +586,10 @@ TEST_CASE("Tracker refuses bad input with the input named") {
   ts = {};
   ts.max_track_move_m = 0.f;
   CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("max_track_move_m"),
+                       InvalidInput);
+  ts = {};
+  ts.max_points_per_object = -1;
+  CHECK_THROWS_WITH_AS(Tracker<cpu::Backend>(models, ts), doctest::Contains("max_points_per_object"),
                        InvalidInput);
   ts = {};
   ts.min_appearance = 1.5f;

@@ -123,6 +123,7 @@ void bind_track(nb::module_& m) {
   PERCH2_RW(ts, TrackSettings, recover_ratio);
   PERCH2_RW(ts, TrackSettings, max_recovery_move_m);
   PERCH2_RW(ts, TrackSettings, max_track_move_m);
+  PERCH2_RW(ts, TrackSettings, max_points_per_object);
   PERCH2_RW(ts, TrackSettings, max_recovery_turn_rad);
   PERCH2_RW(ts, TrackSettings, recovery);
 

@@ -14,6 +14,7 @@
 //            them to the nearest silhouette within a depth gate (perch2/track/region.hpp; only cells near
 //            the objects are visited), hide each render behind readings that are not its own (an
 //            occluder, another object in front), and GICP each object's visible points onto its readings
+//            (at most max_points_per_object of each)
 //   turns    a printed can's turn about its axis, which GICP cannot see, is held by the appearance
 //            (perch2/track/turn_hold.hpp, +-2 deg a frame) and, one object per frame, each every
 //            sweep_every_frames, swept through a whole turn (a start or recovery facing its label away)
@@ -95,6 +96,25 @@ inline Pose scaled(const Pose& m, float f) {
 inline Pose rigid(Pose T) {
   T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();
   return T;
+}
+
+/// `batch` with at most `max_points` of each cloud (every k-th point, k = ceil(size / max_points)); all of
+/// it when max_points is 0 (TrackSettings::max_points_per_object).
+inline CloudBatch thinned(const CloudBatch& batch, int max_points) {
+  if (max_points <= 0) return batch;
+  CloudBatch out;
+  for (std::size_t c = 0; c < batch.num_clouds(); ++c) {
+    const std::size_t n = batch.cloud_size(c),
+                      step = std::max<std::size_t>(
+                          1, (n + std::size_t(max_points) - 1) / std::size_t(max_points));
+    for (auto i = std::size_t(batch.offsets[c]); i < std::size_t(batch.offsets[c + 1]); i += step) {
+      out.x.push_back(batch.x[i]), out.y.push_back(batch.y[i]), out.z.push_back(batch.z[i]);
+      out.rgb.push_back(batch.rgb[i]), out.pixel.push_back(batch.pixel[i]);
+      out.cloud.push_back(std::int32_t(c));
+    }
+    out.offsets.push_back(std::int64_t(out.size()));
+  }
+  return out;
 }
 
 inline bool same_camera(const Intrinsics& a, const Intrinsics& b) {
@@ -221,8 +241,10 @@ class Tracker {
     auto t0 = track_detail::Clock::now();
     track_detail::Regions regions(rendered, pc, settings_.render_stride, lost());
     regions.grow(r.margin_px, r.depth_gate_m);
-    const CloudBatch targets = regions.segments(frame, settings_.observed_stride);
-    const CloudBatch visible = regions.visible(rendered, pc, frame, settings_.occlusion_margin_m);
+    const int cap = settings_.max_points_per_object;
+    const CloudBatch targets = track_detail::thinned(regions.segments(frame, settings_.observed_stride), cap);
+    const CloudBatch visible =
+        track_detail::thinned(regions.visible(rendered, pc, frame, settings_.occlusion_margin_m), cap);
     t.region += track_detail::seconds_since(t0);
     t0 = track_detail::Clock::now();
     // Only objects with enough readings and visible points are refined (the others coast).
