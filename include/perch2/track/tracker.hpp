@@ -93,6 +93,12 @@ inline Pose scaled(const Pose& m, float f) {
   return out;
 }
 
+/// How far the object's origin moved from T_from to T, metres: not the camera-frame motion's translation,
+/// which holds a turn's lever arm (3 deg about the object's own centre at 0.9 m: 4.5 cm).
+inline float origin_move_m(const Pose& T_from, const Pose& T) {
+  return (T.translation() - T_from.translation()).norm();
+}
+
 inline Pose rigid(Pose T) {
   T.linear() = Eigen::Quaternionf(T.linear()).normalized().toRotationMatrix();
   return T;
@@ -461,9 +467,7 @@ class Tracker {
     const bool checked =
         c.segment_points >= s.min_segment_points && c.visible_points >= s.min_visible_points &&
         c.visible_fraction >= s.min_visible_ratio * usual && c.score >= s.min_score && !print_disagrees(c);
-    // The move of the object's origin, not the camera-frame motion's translation: a 3 deg turn about the
-    // object's own centre is a 4.5 cm "motion" at 0.9 m from the camera.
-    const float moved_m = (T.translation() - T_from.translation()).norm();
+    const float moved_m = track_detail::origin_move_m(T_from, T);
     if (!checked || st.out.state != TrackState::Lost) return checked && moved_m <= s.max_track_move_m;
     const float turned_rad = Eigen::AngleAxisf(T.linear() * T_from.linear().transpose()).angle();
     return c.score >= s.recover_ratio * st.usual_score && moved_m <= s.max_recovery_move_m &&
@@ -699,7 +703,7 @@ class Tracker {
       // A tracked pose refined onto readings is the best guess even when it fails the check; a lost one
       // coasts (refined onto what failed the check, it could wander off onto anything).
       const bool refined = c.segment_points >= s.min_segment_points && !was_lost &&
-                           (poses[i].translation() - predicted[i].translation()).norm() <= s.max_track_move_m;
+                           track_detail::origin_move_m(predicted[i], poses[i]) <= s.max_track_move_m;
       const bool pass = passes(st, c, predicted[i], poses[i]);
       settle(st, c, pass, pass || refined ? poses[i] : predicted[i]);
       result.objects.push_back(st.out);
