@@ -26,6 +26,8 @@
 //                     [--dedupe 0|1 (de-duplication after the ICP warm-up)]
 //                     [--fit N (Gauss-Newton steps of the final surface fit, 0 = off)]
 //                     [--target-stride N (the first pass' GICP target grid, pixels)]
+//                     [--screen-in-scene 0|1 (--masks none: the screen before the first pass)]
+//                     [--screen-keep X (the screen's keep fraction)]
 #include <omp.h>
 
 #include <cstdio>
@@ -67,9 +69,11 @@ struct Options {
       placed_only = -1;  ///< >= 0: SixDofSettings overrides (local.turns, scene.local_search_placed_only)
   float geometry_tolerance = -1;  ///< >= 0: SixDofSettings::local.turns.geometry_tolerance
   int warmup = -1,
-      iterations = -1;     ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
-  int fit = -1;            ///< >= 0: SixDofSettings::fit.iterations
-  int target_stride = -1;  ///< >= 1: SixDofSettings::first_pass_target_stride
+      iterations = -1;       ///< >= 0: the first pass' ICP warm-up / GICP passes (SixDofSettings::gicp)
+  int fit = -1;              ///< >= 0: SixDofSettings::fit.iterations
+  int target_stride = -1;    ///< >= 1: SixDofSettings::first_pass_target_stride
+  int screen_in_scene = -1;  ///< >= 0: SixDofSettings::screen.in_scene
+  float screen_keep = -1;    ///< > 0: SixDofSettings::screen.keep_fraction
   std::string child_masks, child_backend;  ///< internal: run one configuration over [first, last] and exit
 };
 
@@ -78,7 +82,7 @@ constexpr const char* kUsage =
     "cpu|thrust_omp|both]\n"
     "             [--dir SCRATCH] [--eval-only] [--color-rule any|nearest] [--warmup N] [--iterations N]\n"
     "             [--local N] [--sweep N] [--final-stride N] [--geometry-tolerance X] [--placed-only 0|1]\n"
-    "             [--dedupe 0|1] [--fit N] [--target-stride N]";
+    "             [--dedupe 0|1] [--fit N] [--target-stride N] [--screen-in-scene 0|1] [--screen-keep X]";
 
 Options parse(int argc, char** argv) {
   Options o;
@@ -127,6 +131,12 @@ Options parse(int argc, char** argv) {
     } else if (a == "--target-stride") {
       o.target_stride = std::stoi(v);
       if (o.target_stride < 1) throw InvalidInput("--target-stride", "must be >= 1");
+    } else if (a == "--screen-in-scene") {
+      o.screen_in_scene = std::stoi(v);
+    } else if (a == "--screen-keep") {
+      o.screen_keep = std::stof(v);
+      if (!(o.screen_keep > 0 && o.screen_keep <= 1))
+        throw InvalidInput("--screen-keep", "must be in (0, 1]");
     } else if (a == "--dir") {
       o.dir = v;
     } else if (a == "--child" && k + 1 < argc) {
@@ -174,10 +184,12 @@ std::string child_overrides(const Options& o) {
                                              {"--final-stride", o.final_stride},
                                              {"--placed-only", o.placed_only},
                                              {"--fit", o.fit},
-                                             {"--target-stride", o.target_stride}};
+                                             {"--target-stride", o.target_stride},
+                                             {"--screen-in-scene", o.screen_in_scene}};
   for (const auto& [flag, v] : all)
     if (v >= 0) out += std::string(" ") + flag + " " + std::to_string(v);
   if (o.geometry_tolerance >= 0) out += " --geometry-tolerance " + std::to_string(o.geometry_tolerance);
+  if (o.screen_keep > 0) out += " --screen-keep " + std::to_string(o.screen_keep);
   return out;
 }
 
@@ -209,6 +221,8 @@ void run(const Options& o, const std::string& masks, const std::string& out_dir)
   if (o.iterations >= 0) settings.gicp.max_iterations = o.iterations;
   if (o.fit >= 0) settings.fit.iterations = o.fit;
   if (o.target_stride >= 1) settings.first_pass_target_stride = o.target_stride;
+  if (o.screen_in_scene >= 0) settings.screen.in_scene = o.screen_in_scene != 0;
+  if (o.screen_keep > 0) settings.screen.keep_fraction = o.screen_keep;
   const SixDofEstimator<Backend> estimator(std::move(models), settings);
   std::vector<dataset::Detection> detections;
   std::map<std::pair<int, int>, std::vector<std::size_t>> detections_of;

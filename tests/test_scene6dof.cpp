@@ -447,6 +447,10 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
   bad.retrieval_inplane_rotations = 0;
   CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("retrieval_inplane_rotations"),
                        InvalidInput);
+  bad = DetectSettings{};
+  bad.retrieval_align_min_elongation = NAN;
+  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("retrieval_align_min_elongation"),
+                       InvalidInput);
 }
 
 TEST_CASE(
@@ -505,6 +509,28 @@ TEST_CASE("6-DoF detection retrieval: the best-scored models per segment, ties k
   kept = jobs;
   sixdof_detail::keep_best_jobs(kept, 10);
   CHECK(kept.size() == jobs.size());
+}
+
+TEST_CASE("6-DoF detection retrieval: a job's image axis is its pixels' long axis, none for a round one") {
+  using sixdof_detail::Job;
+  LabelImage labels(40, 40, 0);
+  for (int k = 0; k < 30; ++k)  // a diagonal stripe, 3 pixels wide, label 2
+    for (int d = -1; d <= 1; ++d) labels(5 + k + d, 5 + k) = 2;
+  for (int v = 10; v < 20; ++v)  // a square, label 3
+    for (int u = 0; u < 10; ++u) labels(u, v) = 3;
+  Job stripe;
+  stripe.label = 2, stripe.box_xywh = {0, 0, 39, 39};
+  CHECK(sixdof_detail::job_image_axis(stripe, labels, 2.f) == doctest::Approx(0.7853982f).epsilon(0.01));
+  Job square;
+  square.label = 3, square.box_xywh = {0, 0, 39, 39};
+  CHECK(std::isnan(sixdof_detail::job_image_axis(square, labels, 2.f)));
+  CHECK(std::isfinite(sixdof_detail::job_image_axis(square, labels, 1.f)));  // any axis will do at 1
+  // A piece's own pixels, not its segment's: a horizontal row of the square.
+  Job piece = square;
+  for (int u = 0; u < 10; ++u) piece.piece_pixels.push_back(15 * 40 + u);
+  CHECK(sixdof_detail::job_image_axis(piece, labels, 2.f) == doctest::Approx(0.f));
+  piece.piece_pixels = {15 * 40};
+  CHECK(std::isnan(sixdof_detail::job_image_axis(piece, labels, 1.f)));  // one pixel: no axis
 }
 
 TEST_CASE("6-DoF scene: a segment of colours the model lacks is never searched for it") {

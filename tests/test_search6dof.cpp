@@ -159,6 +159,55 @@ TEST_CASE("rotation proposals: viewpoints x in-plane for an asymmetric model, al
   CHECK(rotation_proposals(s).size() == std::size_t(s.viewpoints));
 }
 
+TEST_CASE("aligned rotation proposals lay an elongated model's projected long axis along the pixels' axis") {
+  const Mesh bar = synth::make_box({0.2f, 0.04f, 0.04f});  // long along x
+  const Eigen::Matrix3f moments = surface_second_moments(bar);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> eig(moments);
+  CHECK(std::abs(eig.eigenvectors().col(2).x()) > 0.99f);  // longest: x (2 triangles a face: not exact)
+  CHECK(principal_angle(4, 0, 1) == doctest::Approx(0.f));
+  CHECK(std::abs(principal_angle(1, 0, 4)) == doctest::Approx(1.5707963f));
+  CHECK(principal_angle(2, 1, 2) == doctest::Approx(0.7853982f));  // along x = y
+
+  ProposalSettings s;
+  s.viewpoints = 12, s.inplane_rotations = 2;  // the detection retrieval's
+  const float image_angle = 0.6f;
+  const auto aligned = aligned_rotation_proposals(s, {}, moments, image_angle);
+  const auto plain = rotation_proposals(s);
+  // Aligned, two viewpoints' rotations may come within the plain set's spacing: one of them is dropped.
+  CHECK(aligned.size() <= plain.size());
+  CHECK(aligned.size() >= plain.size() * 3 / 4);
+  const float threshold = symmetry_threshold(s, view_rotations(s));
+  for (std::size_t i = 0; i < aligned.size(); ++i)
+    for (std::size_t j = 0; j < i; ++j) CHECK(rotation_angle(aligned[i], aligned[j]) >= threshold);
+  // Off-axis angle of the projected long axis from the image angle (mod pi), where the view shows one.
+  auto misalignment = [&](const Eigen::Matrix3f& R) {
+    const Eigen::Matrix3f m = R * moments * R.transpose();
+    const float mid = 0.5f * (m(0, 0) + m(1, 1)),
+                half = std::sqrt(0.25f * (m(0, 0) - m(1, 1)) * (m(0, 0) - m(1, 1)) + m(0, 1) * m(0, 1));
+    if (mid + half < 4.f * (mid - half)) return -1.f;  // seen nearly end-on: no long axis
+    return std::abs(std::remainder(principal_angle(m(0, 0), m(0, 1), m(1, 1)) - image_angle, 3.1415927f));
+  };
+  int elongated = 0;
+  float plain_worst = 0;
+  for (std::size_t i = 0; i < aligned.size(); ++i) {
+    CHECK((aligned[i] * aligned[i].transpose() - Eigen::Matrix3f::Identity()).norm() < 1e-4f);
+    if (const float off = misalignment(aligned[i]); off >= 0) {
+      ++elongated;
+      CHECK(off < 1e-3f);
+    }
+  }
+  for (const auto& R : plain) plain_worst = std::max(plain_worst, misalignment(R));
+  CHECK(elongated >= 12);     // most views show the bar's length
+  CHECK(plain_worst > 0.5f);  // the fixed in-plane angles leave some far off
+  // Each looks along one of the viewpoints, as in rotation_proposals.
+  const auto v = fibonacci_directions(s.viewpoints);
+  for (const auto& R : aligned)
+    CHECK(std::any_of(v.begin(), v.end(), [&](const Eigen::Vector3f& d) {
+      return (R * -d - Eigen::Vector3f::UnitZ()).norm() < 1e-4f;
+    }));
+  CHECK_THROWS_AS(aligned_rotation_proposals(s, {}, moments, NAN), InvalidInput);
+}
+
 TEST_CASE("rotation proposals of symmetric models are fewer and no two are equivalent under a symmetry") {
   ProposalSettings s;
   const std::size_t full = std::size_t(s.viewpoints * s.inplane_rotations);

@@ -764,6 +764,8 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(dts, DetectSettings, retrieval_jobs_per_object);
   PERCH2_RW(dts, DetectSettings, retrieval_viewpoints);
   PERCH2_RW(dts, DetectSettings, retrieval_inplane_rotations);
+  PERCH2_RW(dts, DetectSettings, retrieval_align_inplane);
+  PERCH2_RW(dts, DetectSettings, retrieval_align_min_elongation);
   PERCH2_RW(dts, DetectSettings, seed_depth);
   PERCH2_RW(dts, DetectSettings, retrieval_acceptable_only);
   PERCH2_RW(dts, DetectSettings, half_evidence_readings);

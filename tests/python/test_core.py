@@ -324,6 +324,7 @@ def test_detect_settings_and_what_a_detection_reports():
     assert settings.retrieval_jobs_per_object == 3 and settings.seed_depth and settings.retrieval_acceptable_only
     assert settings.max_colour_mismatch == pytest.approx(0.15)
     assert (settings.retrieval_viewpoints, settings.retrieval_inplane_rotations) == (12, 2)
+    assert settings.retrieval_align_inplane and settings.retrieval_align_min_elongation == pytest.approx(2.0)
     found = est.detect(depth, rgb, K, settings)  # one model: nothing to rank, no coarse search
     assert found.retrieved_out == 0 and found.search.timings.retrieve == 0
     settings.retrieval_viewpoints = 0  # ranked by colour coverage

@@ -134,7 +134,10 @@ inline float symmetric_rotation_distance(const Eigen::Matrix3f& R, const Eigen::
 }
 
 /// Every viewpoint x in-plane rotation R_view_obj, before symmetry de-duplication (see rotation_proposals).
-inline std::vector<Eigen::Matrix3f> view_rotations(const ProposalSettings& s) {
+/// Viewpoint v's in-plane angles are inplane_offset(R0) + 2 pi k / inplane_rotations, R0 its rotation at
+/// angle 0 (radians about the view's z axis).
+template <class Offset>
+std::vector<Eigen::Matrix3f> view_rotations(const ProposalSettings& s, Offset&& inplane_offset) {
   validate(s);
   std::vector<Eigen::Matrix3f> out;
   for (const Eigen::Vector3f& v : fibonacci_directions(s.viewpoints, s.hemisphere)) {
@@ -145,13 +148,18 @@ inline std::vector<Eigen::Matrix3f> view_rotations(const ProposalSettings& s) {
     const Eigen::Vector3f x = helper.cross(z).normalized(), y = z.cross(x);
     Eigen::Matrix3f R_obj_view;
     R_obj_view << x, y, z;
+    const float offset = inplane_offset(Eigen::Matrix3f(R_obj_view.transpose()));
     for (int k = 0; k < s.inplane_rotations; ++k) {
-      const float theta = 6.2831853f * float(k) / float(s.inplane_rotations);
+      const float theta = offset + 6.2831853f * float(k) / float(s.inplane_rotations);
       out.push_back(Eigen::AngleAxisf(theta, Eigen::Vector3f::UnitZ()).toRotationMatrix() *
                     R_obj_view.transpose());
     }
   }
   return out;
+}
+
+inline std::vector<Eigen::Matrix3f> view_rotations(const ProposalSettings& s) {
+  return view_rotations(s, [](const Eigen::Matrix3f&) { return 0.f; });
 }
 
 /// The threshold rotation_proposals() uses: settings.symmetry_threshold_rad, or if that is < 0, 0.95 x the
@@ -164,22 +172,20 @@ inline float symmetry_threshold(const ProposalSettings& s, const std::vector<Eig
   return 0.95f * spacing;
 }
 
-/// Rotation proposals R_view_obj: object -> a "view" frame whose z axis is the viewing ray (OpenCV: x right,
-/// y down). Viewpoint v (object frame, from the object towards the camera) puts the camera's z along -v;
-/// in-plane rotation k turns it about z by 2 pi k / inplane_rotations. Kept in order, a rotation is dropped
-/// when it lies within symmetry_threshold() of a kept one under the model's symmetries.
-/// pose_proposals() turns the view frame onto each instance's ray.
-inline std::vector<Eigen::Matrix3f> rotation_proposals(const ProposalSettings& s,
-                                                       const ModelSymmetries& symmetries = {}) {
-  validate(s);
+namespace proposal_detail {
+
+inline void check_symmetries(const ModelSymmetries& symmetries) {
   for (const auto& a : symmetries.continuous_axes)
     if (!a.allFinite() || !(a.norm() > 1e-6f))
       throw InvalidInput("ModelSymmetries::continuous_axes", "an axis is zero or not finite");
   for (const auto& S : symmetries.discrete)
     if (!is_valid_pose(S))
       throw InvalidInput("ModelSymmetries::discrete", "a symmetry is not a rigid transform");
-  const std::vector<Eigen::Matrix3f> all = view_rotations(s);
-  const float threshold = symmetry_threshold(s, all);
+}
+
+/// `all` in order without a rotation within `threshold` of a kept one under the symmetries.
+inline std::vector<Eigen::Matrix3f> distinct_rotations(const std::vector<Eigen::Matrix3f>& all,
+                                                       float threshold, const ModelSymmetries& symmetries) {
   std::vector<Eigen::Matrix3f> kept;
   for (const Eigen::Matrix3f& R : all) {
     const bool duplicate = std::any_of(kept.begin(), kept.end(), [&](const Eigen::Matrix3f& A) {
@@ -188,6 +194,64 @@ inline std::vector<Eigen::Matrix3f> rotation_proposals(const ProposalSettings& s
     if (!duplicate) kept.push_back(R);
   }
   return kept;
+}
+
+}  // namespace proposal_detail
+
+/// Rotation proposals R_view_obj: object -> a "view" frame whose z axis is the viewing ray (OpenCV: x right,
+/// y down). Viewpoint v (object frame, from the object towards the camera) puts the camera's z along -v;
+/// in-plane rotation k turns it about z by 2 pi k / inplane_rotations. Kept in order, a rotation is dropped
+/// when it lies within symmetry_threshold() of a kept one under the model's symmetries.
+/// pose_proposals() turns the view frame onto each instance's ray.
+inline std::vector<Eigen::Matrix3f> rotation_proposals(const ProposalSettings& s,
+                                                       const ModelSymmetries& symmetries = {}) {
+  validate(s);
+  proposal_detail::check_symmetries(symmetries);
+  const std::vector<Eigen::Matrix3f> all = view_rotations(s);
+  return proposal_detail::distinct_rotations(all, symmetry_threshold(s, all), symmetries);
+}
+
+/// Second moments of a mesh's surface about its area-weighted centre, object frame (m^2): its triangles'
+/// centroids weighted by their areas (a mesh's vertices crowd where its detail is, not where its surface is).
+inline Eigen::Matrix3f surface_second_moments(const Mesh& mesh) {
+  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d first = Eigen::Vector3d::Zero();
+  double area = 0;
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    const Eigen::Vector3d a = mesh.vertices[std::size_t(t[0])].cast<double>(),
+                          b = mesh.vertices[std::size_t(t[1])].cast<double>(),
+                          c = mesh.vertices[std::size_t(t[2])].cast<double>();
+    const double w = 0.5 * (b - a).cross(c - a).norm();
+    const Eigen::Vector3d m = (a + b + c) / 3.0;
+    sum += w * m * m.transpose(), first += w * m, area += w;
+  }
+  if (!(area > 0)) return Eigen::Matrix3f::Zero();
+  const Eigen::Vector3d mean = first / area;
+  return Eigen::Matrix3f((sum / area - mean * mean.transpose()).cast<float>());
+}
+
+/// The long axis of 2-D second moments (sxx, sxy, syy), radians from the x axis towards y, in (-pi/2, pi/2].
+inline float principal_angle(double sxx, double sxy, double syy) {
+  return float(0.5 * std::atan2(2.0 * sxy, sxx - syy));
+}
+
+/// rotation_proposals() whose in-plane angles start, per viewpoint, where the model's long axis as the
+/// view projects it (from `moments_obj`, surface_second_moments()) lies along `image_angle_rad` (the long
+/// axis of the instance's pixels, principal_angle()): two in-plane angles then cover an elongated object
+/// seen side-on in any orientation, which 2 fixed ones (0 and 180 deg) leave up to 90 deg off. The
+/// de-duplication threshold is rotation_proposals()'s.
+inline std::vector<Eigen::Matrix3f> aligned_rotation_proposals(const ProposalSettings& s,
+                                                               const ModelSymmetries& symmetries,
+                                                               const Eigen::Matrix3f& moments_obj,
+                                                               float image_angle_rad) {
+  validate(s);
+  proposal_detail::check_symmetries(symmetries);
+  if (!std::isfinite(image_angle_rad)) throw InvalidInput("aligned proposals", "image angle is not finite");
+  const std::vector<Eigen::Matrix3f> all = view_rotations(s, [&](const Eigen::Matrix3f& R_view_obj) {
+    const Eigen::Matrix3f m = R_view_obj * moments_obj * R_view_obj.transpose();
+    return image_angle_rad - principal_angle(m(0, 0), m(0, 1), m(1, 1));
+  });
+  return proposal_detail::distinct_rotations(all, symmetry_threshold(s, view_rotations(s)), symmetries);
 }
 
 /// proposal_depths() from a mask's valid depth readings, ascending (not empty), metres.

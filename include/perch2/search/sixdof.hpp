@@ -265,12 +265,15 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
   localization.retrieval_jobs_per_object = ss.retrieval_jobs_per_object;
   const DetectSettings* ranking = detecting ? detecting : &localization;
   if (ranking) {
-    scene.retrieval_jobs_per_object = ranking->retrieval_jobs_per_object;
-    scene.retrieval_seed_depth = ranking->seed_depth;
-    scene.retrieval_acceptable_only = ranking->retrieval_acceptable_only;
-    scene.retrieval = shared_.settings.proposals;  // its hemisphere and symmetry rule, fewer rotations
-    scene.retrieval.viewpoints = ranking->retrieval_viewpoints;
-    scene.retrieval.inplane_rotations = ranking->retrieval_inplane_rotations;
+    RetrievalPlan& plan = scene.retrieval;
+    plan.jobs_per_object = ranking->retrieval_jobs_per_object;
+    plan.seed_depth = ranking->seed_depth;
+    plan.acceptable_only = ranking->retrieval_acceptable_only;
+    plan.align_inplane = ranking->retrieval_align_inplane;
+    plan.align_min_elongation = ranking->retrieval_align_min_elongation;
+    plan.coarse = shared_.settings.proposals;  // its hemisphere and symmetry rule, fewer rotations
+    plan.coarse.viewpoints = ranking->retrieval_viewpoints;
+    plan.coarse.inplane_rotations = ranking->retrieval_inplane_rotations;
   }
   if (detecting) scene.detect_colour_mismatch = detecting->max_colour_mismatch;
   out.missing = scene.remaining;

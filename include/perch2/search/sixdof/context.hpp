@@ -149,6 +149,9 @@ struct Job {
   Eigen::Vector4i box_xywh{0, 0, 0, 0};
   std::vector<float> depths;  ///< proposal depths, metres
   float colour_fraction = 1;  ///< estimate_scene: its readings' fraction of colours the model shows
+  /// If finite: the long axis of its pixels in the image, radians (principal_angle()), from which its
+  /// proposals' in-plane angles start (aligned_rotation_proposals; detect()'s retrieval).
+  float image_axis_rad = NAN;
   float retrieval_score = 0;  ///< detect(): how well the model fits its segment, higher first (retrieval.hpp)
   float retrieval_depth_m = 0;       ///< detect(): planar depth of the coarse search's best pose, metres
   bool retrieval_acceptable = true;  ///< detect(): whether that pose may be placed (acceptable())

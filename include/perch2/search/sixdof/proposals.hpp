@@ -7,6 +7,7 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -53,17 +54,23 @@ std::vector<Hypothesis> propose(const Context<Backend>& ctx, const std::vector<J
   std::vector<Hypothesis> hyps;
   points_estimate.clear();
   std::map<int, std::vector<Eigen::Matrix3f>> rotations_of;  // per model
+  std::map<int, Eigen::Matrix3f> moments_of;                 // per model, for aligned jobs
   for (std::size_t k = 0; k < K; ++k) {
     const Job& job = jobs[k];
+    const SixDofModel& model = ctx.shared.models[std::size_t(job.model)];
+    std::vector<Eigen::Matrix3f> aligned;
+    if (std::isfinite(job.image_axis_rad)) {
+      auto m = moments_of.find(job.model);
+      if (m == moments_of.end()) m = moments_of.emplace(job.model, surface_second_moments(model.mesh)).first;
+      aligned = aligned_rotation_proposals(proposals, model.symmetries, m->second, job.image_axis_rad);
+    }
     auto it = rotations_of.find(job.model);
-    if (it == rotations_of.end())
-      it = rotations_of
-               .emplace(job.model,
-                        rotation_proposals(proposals, ctx.shared.models[std::size_t(job.model)].symmetries))
-               .first;
-    const auto poses = pose_proposals(ctx.frame.camera, box_centre_px(job.box_xywh), it->second, job.depths);
+    if (aligned.empty() && it == rotations_of.end())
+      it = rotations_of.emplace(job.model, rotation_proposals(proposals, model.symmetries)).first;
+    const std::vector<Eigen::Matrix3f>& rotations = aligned.empty() ? it->second : aligned;
+    const auto poses = pose_proposals(ctx.frame.camera, box_centre_px(job.box_xywh), rotations, job.depths);
     for (const auto& T : poses) hyps.push_back({job.model, T, std::int32_t(k + 1)});
-    result.rotations.push_back(it->second.size());
+    result.rotations.push_back(rotations.size());
     result.depths.push_back(job.depths.size());
     result.hypotheses.push_back(poses.size());
     // The object's image at the nearest depth covers at most its diameter's projection, squared.

@@ -24,6 +24,45 @@
 namespace perch2 {
 namespace sixdof_detail {
 
+/// What the retrieval does: detect()'s DetectSettings (estimate_scene()'s with
+/// SceneSettings::retrieval_jobs_per_object).
+struct RetrievalPlan {
+  /// The coarse search's proposals (DetectSettings::retrieval_*); 0 viewpoints = colours rank instead.
+  ProposalSettings coarse = [] {
+    ProposalSettings p;
+    p.viewpoints = 0;
+    return p;
+  }();
+  int jobs_per_object = 0;         ///< DetectSettings::retrieval_jobs_per_object; 0 = every job
+  bool acceptable_only = false;    ///< DetectSettings::retrieval_acceptable_only
+  bool seed_depth = false;         ///< DetectSettings::seed_depth
+  bool align_inplane = false;      ///< DetectSettings::retrieval_align_inplane
+  float align_min_elongation = 2;  ///< DetectSettings::retrieval_align_min_elongation
+};
+
+/// The long axis of a job's pixels (its piece's, else its segment label's inside its box), as
+/// principal_angle() gives it, if they are at least `min_elongation` times as long as wide (the square root
+/// of their second moments' eigenvalue ratio); NaN otherwise (no long axis to align to).
+inline float job_image_axis(const Job& job, const LabelImage& labels, float min_elongation) {
+  double n = 0, su = 0, sv = 0, suu = 0, suv = 0, svv = 0;
+  auto add = [&](double u, double v) { n += 1, su += u, sv += v, suu += u * u, suv += u * v, svv += v * v; };
+  if (!job.piece_pixels.empty()) {
+    for (const std::int32_t i : job.piece_pixels) add(double(i % labels.width), double(i / labels.width));
+  } else {
+    const Eigen::Vector4i& b = job.box_xywh;
+    for (int v = std::max(b[1], 0); v <= std::min(b[1] + b[3], labels.height - 1); ++v)
+      for (int u = std::max(b[0], 0); u <= std::min(b[0] + b[2], labels.width - 1); ++u)
+        if (labels(u, v) == job.label) add(u, v);
+  }
+  if (n < 2) return NAN;
+  const double mu = su / n, mv = sv / n;
+  const double a = suu / n - mu * mu, b = suv / n - mu * mv, c = svv / n - mv * mv;
+  const double mid = 0.5 * (a + c), half = std::sqrt(0.25 * (a - c) * (a - c) + b * b);
+  const double lo = std::max(mid - half, 0.0), hi = mid + half;
+  if (!(hi >= double(min_elongation) * double(min_elongation) * lo)) return NAN;
+  return principal_angle(a, b, c);
+}
+
 /// Per segment label, per model: its best Job::retrieval_score over its pieces there, and their number.
 struct SegmentModel {
   float score = -std::numeric_limits<float>::infinity();
@@ -84,13 +123,14 @@ inline void keep_best_jobs(std::vector<Job>& jobs, int n) {
              jobs.end());
 }
 
-/// Every job's Job::retrieval_score from a coarse search: `coarse`'s rotations at the middle of the job's
-/// depths through the first pass, against the jobs' own targets. The best of its hypotheses that show
+/// Every job's Job::retrieval_score from a coarse search: the plan's rotations (align_inplane: started from
+/// the long axis of the job's pixels) at the middle of the job's depths through the first pass, against
+/// the jobs' own targets. The best of its hypotheses that show
 /// enough points (keep_best's rule) as the explanation would pick it: the readings it explains, scaled by
 /// 1e-3 unless acceptable (detect_colour_mismatch); -infinity if none shows enough points.
 template <class Backend>
 void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
-                   const LabelImage& labels, std::size_t S, const ProposalSettings& coarse,
+                   const LabelImage& labels, std::size_t S, const RetrievalPlan& plan,
                    float detect_colour_mismatch, std::vector<Job>& jobs) {
   const SixDofSettings& s = sh.settings;
   SixDofResult scratch;  // the coarse search's counts and times are not the search's (timings.retrieve)
@@ -100,9 +140,11 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
   for (std::size_t k = 0; k < jobs.size(); ++k) {
     middle[k].model = jobs[k].model, middle[k].box_xywh = jobs[k].box_xywh;
     middle[k].depths = {jobs[k].depths[jobs[k].depths.size() / 2]};
+    if (plan.align_inplane)
+      middle[k].image_axis_rad = job_image_axis(jobs[k], labels, plan.align_min_elongation);
   }
   std::vector<std::size_t> points_estimate;
-  std::vector<Hypothesis> hyps = propose(ctx, middle, coarse, points_estimate, scratch);
+  std::vector<Hypothesis> hyps = propose(ctx, middle, plan.coarse, points_estimate, scratch);
   const std::vector<int> stride = first_pass_strides(s, jobs, targets.group_points);
   const std::vector<CostBreakdown> costs = first_pass(ctx, stride, hyps, points_estimate, scratch);
   for (Job& j : jobs)
@@ -120,13 +162,13 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
 }
 
 /// detect()'s retrieval: coarse_scores, then (acceptable_only) no job whose coarse best is not acceptable,
-/// then keep_best_jobs (`n` per object a segment may hold); nothing when every segment keeps all its jobs.
-/// seed_depth: the kept jobs propose at their coarse best's depth.
+/// then keep_best_jobs (jobs_per_object per object a segment may hold); nothing when every segment keeps
+/// all its jobs. seed_depth: the kept jobs propose at their coarse best's depth.
 template <class Backend>
 void retrieve(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
-              const LabelImage& labels, std::size_t S, const ProposalSettings& coarse, int n,
-              float detect_colour_mismatch, bool acceptable_only, bool seed_depth, std::vector<Job>& jobs,
-              SixDofResult& result) {
+              const LabelImage& labels, std::size_t S, const RetrievalPlan& plan,
+              float detect_colour_mismatch, std::vector<Job>& jobs, SixDofResult& result) {
+  const int n = plan.jobs_per_object;
   const SegmentModels seen = segment_models(jobs);
   if (std::all_of(seen.begin(), seen.end(), [&](const auto& s) {
         std::size_t pieces = 0;
@@ -135,12 +177,12 @@ void retrieve(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegm
       }))
     return;
   const auto t = Clock::now();
-  coarse_scores(sh, frame, segments, labels, S, coarse, detect_colour_mismatch, jobs);
-  if (acceptable_only)
+  coarse_scores(sh, frame, segments, labels, S, plan, detect_colour_mismatch, jobs);
+  if (plan.acceptable_only)
     jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [](const Job& j) { return !j.retrieval_acceptable; }),
                jobs.end());
   keep_best_jobs(jobs, n);
-  if (seed_depth)  // the full search proposes at the depth GICP found
+  if (plan.seed_depth)  // the full search proposes at the depth GICP found
     for (Job& j : jobs)
       if (std::isfinite(j.retrieval_score)) j.depths = {j.retrieval_depth_m};
   result.timings.retrieve += seconds_since(t);

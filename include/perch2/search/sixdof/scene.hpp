@@ -44,15 +44,7 @@ struct SceneState {
   std::vector<int> placed_object;
   std::vector<std::size_t> placed_estimate;  ///< per placed object: its job's rendered-points estimate
   float detect_colour_mismatch = 1.f;        ///< acceptable()'s (detect(): DetectSettings); 1 = no test
-  int retrieval_jobs_per_object = 0;         ///< detect(): DetectSettings'; 0 = every job
-  bool retrieval_seed_depth = false;         ///< detect(): DetectSettings::seed_depth
-  bool retrieval_acceptable_only = false;    ///< detect(): DetectSettings::retrieval_acceptable_only
-  /// detect(): the retrieval's coarse proposals (DetectSettings::retrieval_*); 0 viewpoints = colours rank
-  ProposalSettings retrieval = [] {
-    ProposalSettings p;
-    p.viewpoints = 0;
-    return p;
-  }();
+  RetrievalPlan retrieval;                   ///< detect()'s (retrieval.hpp); by default none
 };
 
 /// The state before the first pass: every object's count still to place, the maps between objects and
@@ -172,15 +164,14 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
     screen_colours(sh, frame, scene.labels, jobs);
     out.screened_out += before - jobs.size();
     const std::size_t screened = jobs.size();
-    if (scene.retrieval_jobs_per_object > 0 && scene.retrieval.viewpoints == 0)
-      keep_best_models(jobs, scene.retrieval_jobs_per_object);
+    if (scene.retrieval.jobs_per_object > 0 && scene.retrieval.coarse.viewpoints == 0)
+      keep_best_models(jobs, scene.retrieval.jobs_per_object);
     out.retrieved_out += screened - jobs.size();
   }
   result.timings.proposals += seconds_since(t);
-  if (scene.retrieval.viewpoints > 0 && scene.retrieval_jobs_per_object > 0 && !jobs.empty()) {
+  if (scene.retrieval.coarse.viewpoints > 0 && scene.retrieval.jobs_per_object > 0 && !jobs.empty()) {
     const std::size_t screened = jobs.size();
-    retrieve(sh, frame, segments, scene.labels, S, scene.retrieval, scene.retrieval_jobs_per_object,
-             scene.detect_colour_mismatch, scene.retrieval_acceptable_only, scene.retrieval_seed_depth, jobs,
+    retrieve(sh, frame, segments, scene.labels, S, scene.retrieval, scene.detect_colour_mismatch, jobs,
              result);
     out.retrieved_out += screened - jobs.size();
   }
