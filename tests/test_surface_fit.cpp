@@ -10,6 +10,8 @@
 #include <random>
 #include <vector>
 
+#include <omp.h>
+
 #include "perch2/cpu/render.hpp"
 #include "perch2/registration/surface_fit.hpp"
 #include "render_fixtures.hpp"
@@ -265,6 +267,20 @@ TEST_CASE("surface fit: cpu and thrust_omp equal a long-double reference on read
                                                << 1e3 * add_m(c.m, omp, ref) << " mm");
   CHECK(add_m(c.m, cpu, ref) < 0.05e-3);
   CHECK(add_m(c.m, omp, ref) < 0.05e-3);
+}
+
+TEST_CASE("surface fit: the same pose bit for bit on one thread and on all (pairs found in parallel)") {
+  const OutlierCase c;
+  REQUIRE(c.obs.size() >= 512);  // large enough for the parallel pairing
+  const SurfaceFit<thrust_omp::Backend> fit({c.m});
+  const SurfaceFitResult all = fit.fit(c.obs, {0}, {c.start}, SurfaceFitSettings{});
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  const SurfaceFitResult one = fit.fit(c.obs, {0}, {c.start}, SurfaceFitSettings{});
+  omp_set_num_threads(threads);
+  CHECK(one.iterations[0] == all.iterations[0]);
+  CHECK(one.inliers[0] == all.inliers[0]);
+  CHECK(one.T_cam_obj[0].matrix() == all.T_cam_obj[0].matrix());
 }
 
 TEST_CASE("surface fit: readings without outliers give the true pose, a can's turn about its axis stays") {
