@@ -25,6 +25,7 @@
 #include "perch2/registration/surface_fit.hpp"
 #include "perch2/render/render.hpp"
 #include "perch2/render/simplify.hpp"
+#include "perch2/search/proposals.hpp"
 #include "perch2/search/sixdof/result.hpp"
 #include "perch2/search/sixdof/settings.hpp"
 
@@ -117,6 +118,7 @@ struct Shared {
       size_m.push_back(e.norm());
       face_m2.emplace_back(e[0] * e[1], e[1] * e[2]);
       colours.push_back(model_colours(m.mesh));
+      surface_moments.push_back(surface_second_moments(m.mesh));
     }
   }
 
@@ -135,6 +137,7 @@ struct Shared {
   /// per model, its bounding box's smallest and largest face, m^2 (the scene search's size rules)
   std::vector<std::pair<float, float>> face_m2;
   std::vector<std::vector<std::uint32_t>> colours;  ///< per model, model_colours()
+  std::vector<Eigen::Matrix3f> surface_moments;  ///< per model, surface_second_moments() (aligned proposals)
 };
 
 /// One search of the pipeline: a model's proposals (rotations x depths on the ray through the box centre)

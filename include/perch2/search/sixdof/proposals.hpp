@@ -54,16 +54,14 @@ std::vector<Hypothesis> propose(const Context<Backend>& ctx, const std::vector<J
   std::vector<Hypothesis> hyps;
   points_estimate.clear();
   std::map<int, std::vector<Eigen::Matrix3f>> rotations_of;  // per model
-  std::map<int, Eigen::Matrix3f> moments_of;                 // per model, for aligned jobs
   for (std::size_t k = 0; k < K; ++k) {
     const Job& job = jobs[k];
     const SixDofModel& model = ctx.shared.models[std::size_t(job.model)];
     std::vector<Eigen::Matrix3f> aligned;
-    if (std::isfinite(job.image_axis_rad)) {
-      auto m = moments_of.find(job.model);
-      if (m == moments_of.end()) m = moments_of.emplace(job.model, surface_second_moments(model.mesh)).first;
-      aligned = aligned_rotation_proposals(proposals, model.symmetries, m->second, job.image_axis_rad);
-    }
+    if (std::isfinite(job.image_axis_rad))
+      aligned =
+          aligned_rotation_proposals(proposals, model.symmetries,
+                                     ctx.shared.surface_moments[std::size_t(job.model)], job.image_axis_rad);
     auto it = rotations_of.find(job.model);
     if (aligned.empty() && it == rotations_of.end())
       it = rotations_of.emplace(job.model, rotation_proposals(proposals, model.symmetries)).first;
