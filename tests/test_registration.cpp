@@ -9,9 +9,12 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 #include <random>
+#include <string>
 
+#include "perch2/core/parallel.hpp"
 #include "perch2/cpu/render.hpp"
 #include "perch2/io/mesh_io.hpp"
 #include "perch2/registration/device_math.hpp"
@@ -459,6 +462,40 @@ TEST_CASE("backends agree on ICP and GICP") {
       CHECK(std::abs(a.inliers[h] - b.inliers[h]) <= 2);  // points exactly at the cap may flip
       CHECK(a.final_error[h] == doctest::Approx(b.final_error[h]).epsilon(1e-2));
     }
+  }
+}
+
+TEST_CASE("build_index builds a small index on the calling thread under passive waiting, the same index") {
+  // The ctest environment (run.sh) sets OMP_WAIT_POLICY=passive; elsewhere the other branch is checked.
+  const char* policy = std::getenv("OMP_WAIT_POLICY");
+  const char* spin = std::getenv("GOMP_SPINCOUNT");
+  CHECK(perch2::omp_waits_passively() == (policy && std::string(policy) == "passive" && !spin));
+  const int threads = omp_get_max_threads();
+  const Scene& sc = scene();
+  REQUIRE(sc.target.size() <= perch2::kSerialIndexPoints);
+  int inside = 0;
+  const auto serial = perch2::build_index(sc.target.size(), [&] {
+    inside = omp_get_max_threads();
+    return thrust_omp::Backend::Registration(sc.target);
+  });
+  CHECK(inside == (perch2::omp_waits_passively() ? 1 : threads));
+  CHECK(omp_get_max_threads() == threads);  // restored
+  int large = 0;
+  perch2::build_index(perch2::kSerialIndexPoints + 1, [&] { return large = omp_get_max_threads(); });
+  CHECK(large == threads);
+  // Built on one thread or on all, the index gives the same poses bit for bit.
+  std::mt19937 rng(29);
+  const Eigen::Vector3f c = centroid(sc.view);
+  CloudBatch sources;
+  for (int k = 0; k < 4; ++k) append_moved(sources, sc.view, perturbation(rng, c, 8 * kDeg, 0.02f));
+  const std::vector<std::int32_t> seg(sources.num_clouds(), 0);
+  const RegistrationResult a = serial.gicp(sources, seg, gicp_settings());
+  const RegistrationResult b =
+      thrust_omp::Backend::Registration(sc.target).gicp(sources, seg, gicp_settings());
+  for (std::size_t h = 0; h < a.size(); ++h) {
+    CAPTURE(h);
+    CHECK(a.T_corr[h].matrix() == b.T_corr[h].matrix());
+    CHECK(a.inliers[h] == b.inliers[h]);
   }
 }
 

@@ -58,6 +58,7 @@
 #include <optional>
 #include <vector>
 
+#include "perch2/core/parallel.hpp"
 #include "perch2/search/sixdof/context.hpp"
 #include "perch2/search/sixdof/first_pass.hpp"
 #include "perch2/search/sixdof/observed.hpp"
@@ -180,9 +181,11 @@ SixDofResult SixDofEstimator<Backend>::estimate(const RgbdFrame& frame,
   // ---- observed: labels, trimming, segments (GICP targets, J_o's points), occluders
   auto t = Clock::now();
   const ObservedInstances in = observe_instances(shared_, frame, instances, result);
-  const typename Backend::Registration registration(in.observed);
-  const auto first_pass_registration = first_pass_targets(shared_, frame, in.observed);
-  const typename Backend::Cost cost(in.observed);
+  const std::size_t n = in.observed.size();
+  const auto registration = build_index(n, [&] { return typename Backend::Registration(in.observed); });
+  const auto first_pass_registration =
+      build_index(n, [&] { return first_pass_targets(shared_, frame, in.observed); });
+  const auto cost = build_index(n, [&] { return typename Backend::Cost(in.observed); });
   const Occluders occluders{frame.depth_m, in.labels};
   result.timings.observed = seconds_since(t);
 

@@ -47,6 +47,7 @@
 
 #include "perch2/core/error.hpp"
 #include "perch2/core/image.hpp"
+#include "perch2/core/parallel.hpp"
 #include "perch2/core/pose.hpp"
 #include "perch2/cost/cost.hpp"
 #include "perch2/render/render.hpp"
@@ -271,7 +272,8 @@ class Tracker {
       segment.push_back(std::int32_t(c)), object.push_back(c);
     }
     if (!object.empty()) {
-      const typename Backend::Registration registration(targets);
+      const auto registration =
+          build_index(targets.size(), [&] { return typename Backend::Registration(targets); });
       const RegistrationResult res = registration.gicp(sources, segment, r.gicp);
       for (std::size_t k = 0; k < object.size(); ++k) {
         Pose& T = poses[object[k]];
@@ -390,7 +392,7 @@ class Tracker {
     const CloudBatch visible = regions.visible(rendered, pc, frame, settings_.occlusion_margin_m);
     std::vector<CostBreakdown> costs(states_.size());
     if (targets.size() > 0) {
-      const typename Backend::Cost cost(targets);
+      const auto cost = build_index(targets.size(), [&] { return typename Backend::Cost(targets); });
       CostRequest request;
       for (std::size_t c = 0; c < states_.size(); ++c) request.add(std::int32_t(c));
       costs = cost.evaluate(visible, request, settings_.cost).hypotheses;
