@@ -14,7 +14,8 @@ namespace perch2 {
 
 /// Whether OpenMP's idle threads sleep between parallel regions: OMP_WAIT_POLICY=passive (run.sh's
 /// setting) without a GOMP_SPINCOUNT. Each region then wakes them through the kernel (about 10-50 us on
-/// a 2-vCPU VM); spinning threads (libgomp's default for the first 3 ms of a wait) start at once.
+/// a 2-vCPU VM); spinning threads (libgomp's default for the first 3 ms of a wait) start at once. Read once,
+/// as libgomp reads them once at start-up.
 inline bool omp_waits_passively() {
   static const bool passive = [] {
     const char* policy = std::getenv("OMP_WAIT_POLICY");
@@ -32,7 +33,8 @@ inline bool omp_waits_passively() {
 /// Runs the OpenMP parallel regions this thread starts within the scope on this thread alone, if `small`
 /// and OpenMP waits passively (omp_waits_passively). For stages of many short launches over little data,
 /// such as building the indexes of a few thousand observed points: under passive waiting each region's
-/// wake-up costs more than its work, while spinning threads split it at no cost.
+/// wake-up costs more than its work, while spinning threads split it at no cost. It sets this thread's
+/// thread count only (an OpenMP ICV per thread): a search running on another thread keeps its threads.
 class SerialScope {
  public:
   explicit SerialScope(bool small) {
