@@ -391,7 +391,8 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
   every_model.retrieval_jobs_per_object = 0;
   const SixDofSceneResult all = estimator.detect(t.rgbd, every_model);
   CHECK(all.retrieved_out == 0);
-  CHECK(all.jobs >= r.jobs + r.retrieved_out);
+  CHECK(all.halves == 0);  // the halves are ranked by the retrieval only
+  CHECK(all.jobs + r.halves >= r.jobs + r.retrieved_out);
   std::set<int> all_models;
   for (const SixDofPose& p : all.poses) all_models.insert(p.model);
   CHECK(all_models == models);
@@ -417,6 +418,13 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
   std::set<int> more_models;
   for (const SixDofPose& p : more.poses) more_models.insert(p.model);
   CHECK(more_models == models);
+  // The coarse search's rotations all through the first pass (no screen): the same two, more time there.
+  DetectSettings unscreened;
+  unscreened.retrieval_screen_keep = 0;
+  const SixDofSceneResult all_rotations = estimator.detect(t.rgbd, unscreened);
+  std::set<int> all_rotations_models;
+  for (const SixDofPose& p : all_rotations.poses) all_rotations_models.insert(p.model);
+  CHECK(all_rotations_models == models);
   // Without the coarse search's depth the kept jobs search up to max_depths depths: more proposals.
   DetectSettings unseeded = one_model;
   unseeded.seed_depth = false;
@@ -446,6 +454,10 @@ TEST_CASE("6-DoF detection: the catalogue's models in the frame are found once e
   bad = DetectSettings{};
   bad.retrieval_inplane_rotations = 0;
   CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("retrieval_inplane_rotations"),
+                       InvalidInput);
+  bad = DetectSettings{};
+  bad.retrieval_screen_keep = -1;
+  CHECK_THROWS_WITH_AS(estimator.detect(t.rgbd, bad), doctest::Contains("retrieval_screen_keep"),
                        InvalidInput);
   bad = DetectSettings{};
   bad.retrieval_align_min_elongation = NAN;
@@ -634,6 +646,48 @@ TEST_CASE("6-DoF scene: an object with a distractor stacked on it is found in a 
   CHECK(SixDofEstimator<thrust_omp::Backend>(sixdof_models(t.models), s)
             .estimate_scene(t.rgbd, {{kBox, 1}})
             .jobs == 1);
+}
+
+TEST_CASE("6-DoF scene: a model that takes a merged segment whole is also searched on its halves") {
+  // A can against the printed box's side: one segment, which the can's size rule cuts into pieces but
+  // the box's takes whole. The box also gets a job on each half of it (Job::half): its whole job starts
+  // at the merged segment's box and depths (on generated clutter a bowl merged with a distractor was
+  // then taken for its smaller copy, searched on the bowl's piece).
+  const Table t = make_table({{kCola, -0.036f, 0.f, 0.f}, {kBox, 0.035f, 0.f, 0.f}});
+  const SixDofSettings s = test_settings();
+  const sixdof_detail::Shared<thrust_omp::Backend> sh(sixdof_models(t.models), s);
+  const FrameSegments seg = segment_frame(t.rgbd, s.scene.segmentation, 0.001f);
+  REQUIRE(seg.segments.size() == 1);
+  std::vector<sixdof_detail::Job> jobs;
+  sixdof_detail::PieceCache pieces;
+  sixdof_detail::add_scene_jobs(sh, t.rgbd, seg, 0, kBox, pieces, jobs);
+  INFO("segment area " << seg.segments[0].area_m2 << " m^2, extent " << seg.segments[0].extent_m << " m");
+  REQUIRE(jobs.size() == 1);  // the box: the whole segment
+  CHECK(jobs[0].piece_pixels.empty());
+  sixdof_detail::add_half_jobs(sh, t.rgbd, seg, pieces, jobs);
+  CHECK(jobs.size() == 1);  // no model cut the segment: nothing to add
+  sixdof_detail::add_scene_jobs(sh, t.rgbd, seg, 0, kCola, pieces, jobs);
+  const std::size_t cola_jobs = jobs.size() - 1;
+  REQUIRE(cola_jobs >= 2);  // the cola: pieces
+  sixdof_detail::add_half_jobs(sh, t.rgbd, seg, pieces, jobs);
+  REQUIRE(jobs.size() == 1 + cola_jobs + 2);
+  std::size_t half_pixels = 0;
+  for (std::size_t j = 1 + cola_jobs; j < jobs.size(); ++j) {
+    CHECK(jobs[j].half);
+    CHECK(jobs[j].model == kBox);
+    CHECK(jobs[j].label == jobs[0].label);
+    CHECK(!jobs[j].depths.empty());
+    half_pixels += jobs[j].piece_pixels.size();
+  }
+  CHECK(half_pixels == std::size_t(seg.segments[0].pixels));  // the halves cover the segment
+  for (std::size_t j = 0; j <= cola_jobs; ++j) CHECK(!jobs[j].half);
+  // The halves are alternatives to the whole, not more objects: the retrieval still keeps one job per
+  // object on the segment (the cola's pieces count as two objects' room only for the cola).
+  std::vector<sixdof_detail::Job> ranked = jobs;
+  for (std::size_t j = 0; j < ranked.size(); ++j) ranked[j].retrieval_score = float(j);
+  sixdof_detail::keep_best_jobs(ranked, 1);
+  REQUIRE(ranked.size() == 1);
+  CHECK(ranked[0].half);  // the best-scored job, a half
 }
 
 TEST_CASE("6-DoF scene: an object sharing a segment with a placed neighbour is found on what it leaves") {

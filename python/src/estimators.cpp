@@ -643,6 +643,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(scs, SceneSettings, max_area_faces);
   PERCH2_RW(scs, SceneSettings, piece_extent_factor);
   PERCH2_RW(scs, SceneSettings, piece_area_faces);
+  PERCH2_RW(scs, SceneSettings, half_jobs);
   PERCH2_RW(scs, SceneSettings, max_pieces);
   PERCH2_RW(scs, SceneSettings, min_segment_points);
   PERCH2_RW(scs, SceneSettings, min_inlier_fraction);
@@ -764,6 +765,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RW(dts, DetectSettings, retrieval_jobs_per_object);
   PERCH2_RW(dts, DetectSettings, retrieval_viewpoints);
   PERCH2_RW(dts, DetectSettings, retrieval_inplane_rotations);
+  PERCH2_RW(dts, DetectSettings, retrieval_screen_keep);
   PERCH2_RW(dts, DetectSettings, retrieval_align_inplane);
   PERCH2_RW(dts, DetectSettings, retrieval_align_min_elongation);
   PERCH2_RW(dts, DetectSettings, seed_depth);
@@ -779,6 +781,7 @@ void bind_estimators(nb::module_& m) {
   PERCH2_RO(ssr, SixDofSceneResult, below_plane);
   PERCH2_RO(ssr, SixDofSceneResult, plane);
   PERCH2_RO(ssr, SixDofSceneResult, jobs);
+  PERCH2_RO(ssr, SixDofSceneResult, halves);
   PERCH2_RO(ssr, SixDofSceneResult, screened_out);
   PERCH2_RO(ssr, SixDofSceneResult, retrieved_out);
   PERCH2_RO(ssr, SixDofSceneResult, candidates);

@@ -274,6 +274,7 @@ def test_estimate_scene_objects_and_bad_requests():
     assert est.settings.scene.min_inlier_fraction == pytest.approx(0.55)
     assert est.settings.scene.min_colour_fraction == pytest.approx(0.3)
     assert est.settings.scene.piece_area_faces == pytest.approx(1.0)
+    assert est.settings.scene.half_jobs
     assert est.settings.scene.max_colour_mismatch == pytest.approx(0.5)
     assert r.jobs + r.screened_out >= 1
     assert r.reverted <= r.refined  # spare placements: candidates refined after the box is placed
@@ -324,6 +325,7 @@ def test_detect_settings_and_what_a_detection_reports():
     assert settings.retrieval_jobs_per_object == 3 and settings.seed_depth and settings.retrieval_acceptable_only
     assert settings.max_colour_mismatch == pytest.approx(0.15)
     assert (settings.retrieval_viewpoints, settings.retrieval_inplane_rotations) == (12, 2)
+    assert settings.retrieval_screen_keep == 6
     assert settings.retrieval_align_inplane and settings.retrieval_align_min_elongation == pytest.approx(2.0)
     found = est.detect(depth, rgb, K, settings)  # one model: nothing to rank, no coarse search
     assert found.retrieved_out == 0 and found.search.timings.retrieve == 0
@@ -339,6 +341,9 @@ def test_detect_settings_and_what_a_detection_reports():
         est.detect(depth, rgb, K, settings)
     settings.retrieval_jobs_per_object, settings.retrieval_viewpoints = 2, -1
     with pytest.raises(perch2.InvalidInput, match="retrieval_viewpoints"):
+        est.detect(depth, rgb, K, settings)
+    settings.retrieval_viewpoints, settings.retrieval_screen_keep = 12, -1
+    with pytest.raises(perch2.InvalidInput, match="retrieval_screen_keep"):
         est.detect(depth, rgb, K, settings)
     for field, bad in (("half_evidence_readings", -1.0), ("half_evidence_readings", float("nan")),
                        ("max_below_plane_m", float("nan")), ("max_below_plane_m", -0.01)):

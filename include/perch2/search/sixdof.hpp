@@ -93,7 +93,9 @@ std::vector<Finalist> search(const Context<Backend>& ctx, const std::vector<Job>
   // ---- the screen (a coarser, cheaper pass; the best fraction go on), then the first pass over the rest
   // (chunks): render, refine, re-render, cheap cost
   const std::vector<int> first_stride = first_pass_strides(s, jobs, segment_points);
-  if (screen_proposals) screen(ctx, jobs, segment_points, first_stride, hyps, points_estimate, result);
+  if (screen_proposals)
+    screen(ctx, ctx.shared.settings.screen, jobs, segment_points, first_stride, hyps, points_estimate,
+           result);
   auto t = Clock::now();
   const std::vector<CostBreakdown> first_costs = first_pass(ctx, first_stride, hyps, points_estimate, result);
   result.timings.first_pass += seconds_since(t);
@@ -277,6 +279,7 @@ SixDofSceneResult SixDofEstimator<Backend>::explain_scene(const RgbdFrame& frame
     plan.coarse = shared_.settings.proposals;  // its hemisphere and symmetry rule, fewer rotations
     plan.coarse.viewpoints = ranking->retrieval_viewpoints;
     plan.coarse.inplane_rotations = ranking->retrieval_inplane_rotations;
+    plan.screen_keep = ranking->retrieval_screen_keep;
   }
   if (detecting) scene.detect_colour_mismatch = detecting->max_colour_mismatch;
   out.missing = scene.remaining;

@@ -158,6 +158,8 @@ struct Job {
   float retrieval_score = 0;  ///< detect(): how well the model fits its segment, higher first (retrieval.hpp)
   float retrieval_depth_m = 0;       ///< detect(): planar depth of the coarse search's best pose, metres
   bool retrieval_acceptable = true;  ///< detect(): whether that pose may be placed (acceptable())
+  /// detect(): a half of a segment its model's size rule took whole (add_half_jobs)
+  bool half = false;
 };
 
 /// A job's selected hypothesis (label = job + 1) and its final cost; with the local search deferred

@@ -89,29 +89,30 @@ std::vector<CostBreakdown> run_by_stride(const Context<Backend>& ctx, Pass pass,
 /// The screen's stride for a job whose first pass runs at `first_stride`: screen.stride for one at
 /// render.stride, the same ratio finer for a mostly hidden instance refined on a finer grid
 /// (screen.hidden; 0 = not screened).
-inline int screen_stride(const SixDofSettings& s, int first_stride) {
-  if (s.screen.stride == 0) return 0;
-  if (first_stride >= s.render.stride) return s.screen.stride;
-  return s.screen.hidden ? std::max(first_stride + 1, first_stride * s.screen.stride / s.render.stride) : 0;
+inline int screen_stride(const SixDofSettings& s, const ScreenSettings& sc, int first_stride) {
+  if (sc.stride == 0) return 0;
+  if (first_stride >= s.render.stride) return sc.stride;
+  return sc.hidden ? std::max(first_stride + 1, first_stride * sc.stride / s.render.stride) : 0;
 }
 
 /// Whether the screen runs for a job whose first pass runs at `first_stride` on a segment of
 /// `segment_points` observed points: it has a screen_stride() and is expected to show at least
 /// screen.min_points there.
-inline bool screened(const SixDofSettings& s, int first_stride, std::size_t segment_points) {
-  const int stride = screen_stride(s, first_stride);
+inline bool screened(const SixDofSettings& s, const ScreenSettings& sc, int first_stride,
+                     std::size_t segment_points) {
+  const int stride = screen_stride(s, sc, first_stride);
   if (stride == 0) return false;
   const double expected =
       double(segment_points) * double(s.observed.stride * s.observed.stride) / double(stride * stride);
-  return expected >= double(s.screen.min_points);
+  return expected >= double(sc.min_points);
 }
 
-/// The screen (ScreenSettings): the proposals of every screened job (screened(), and more than min_keep
+/// The screen (`sc`: SixDofSettings::screen, or the retrieval's): the proposals of every screened job (screened(), and more than min_keep
 /// of them) rendered at screen.stride, moved by the ICP passes against the first pass' targets and scored
 /// with first_pass_cost; each such job keeps its best keep_fraction (at least min_keep; those showing too
 /// few points rank last) at the poses the screen reached. `hyps` stays grouped by job, in order.
 template <class Backend>
-void screen(const Context<Backend>& ctx, const std::vector<Job>& jobs,
+void screen(const Context<Backend>& ctx, const ScreenSettings& sc, const std::vector<Job>& jobs,
             const std::vector<std::size_t>& segment_points, const std::vector<int>& first_stride,
             std::vector<Hypothesis>& hyps, const std::vector<std::size_t>& points_estimate,
             SixDofResult& result) {
@@ -120,22 +121,22 @@ void screen(const Context<Backend>& ctx, const std::vector<Job>& jobs,
   for (const Hypothesis& h : hyps) ++proposals[std::size_t(h.label - 1)];
   std::vector<char> on(jobs.size());  // a job with no more than min_keep proposals would keep them all
   for (std::size_t k = 0; k < jobs.size(); ++k)
-    on[k] = proposals[k] > std::size_t(s.screen.min_keep) &&
-            screened(s, first_stride[k], segment_points[std::size_t(jobs[k].segment)]);
+    on[k] = proposals[k] > std::size_t(sc.min_keep) &&
+            screened(s, sc, first_stride[k], segment_points[std::size_t(jobs[k].segment)]);
   std::vector<Hypothesis> coarse;
   for (const Hypothesis& h : hyps)
     if (on[std::size_t(h.label - 1)]) coarse.push_back(h);
   if (coarse.empty()) return;
   const auto t = Clock::now();
   CostSettings cost = s.first_pass_cost;
-  cost.use_color = s.screen.use_color;
+  cost.use_color = sc.use_color;
   Pass pass;
   pass.gicp = s.gicp;
-  pass.gicp.icp_warmup_iterations = s.screen.icp_iterations;
+  pass.gicp.icp_warmup_iterations = sc.icp_iterations;
   pass.warmup_only = true;
   pass.cost = &cost;
   std::vector<int> stride_of(jobs.size());
-  for (std::size_t k = 0; k < jobs.size(); ++k) stride_of[k] = screen_stride(s, first_stride[k]);
+  for (std::size_t k = 0; k < jobs.size(); ++k) stride_of[k] = screen_stride(s, sc, first_stride[k]);
   const std::vector<CostBreakdown> costs =
       run_by_stride(ctx, pass, stride_of, coarse, points_estimate, result);
 
@@ -149,9 +150,8 @@ void screen(const Context<Backend>& ctx, const std::vector<Job>& jobs,
       return std::make_pair(costs[i].rendered_points < min_points, costs[i].total);
     };
     std::stable_sort(idx.begin(), idx.end(), [&](std::size_t a, std::size_t b) { return rank(a) < rank(b); });
-    const std::size_t n =
-        std::max(std::size_t(s.screen.min_keep),
-                 std::size_t(std::ceil(double(s.screen.keep_fraction) * double(idx.size()))));
+    const std::size_t n = std::max(std::size_t(sc.min_keep),
+                                   std::size_t(std::ceil(double(sc.keep_fraction) * double(idx.size()))));
     for (std::size_t r = 0; r < std::min(n, idx.size()); ++r) keep[idx[r]] = 1;
   }
   std::vector<Hypothesis> out;

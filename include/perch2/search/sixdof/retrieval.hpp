@@ -1,8 +1,9 @@
 // detect()'s retrieval: on each segment only the models that fit it best earn the full search, so the
 // search grows with the segments, not with the catalogue. Every job the size and colour screening let
 // through first gets a coarse render-and-compare (coarse_scores): a few rotations (DetectSettings::
-// retrieval_*) at the middle of its depths through the first pass (render, ICP warm-up + GICP, cheap
-// RGB-D cost), scored as the explanation will choose (acceptable first, then the readings explained);
+// retrieval_*) at the middle of its depths, the best few of them after the screen (stride 16, ICP), through
+// the first pass (render, ICP warm-up + GICP, cheap RGB-D cost), scored as the explanation will choose
+// (acceptable first, then the readings explained);
 // keep_best_jobs keeps the best few (model, piece) jobs of each segment. Colours alone (screen_colours'
 // coverage, keep_best_models) rank poorly: a broad palette covers most segments.
 #pragma once
@@ -34,6 +35,7 @@ struct RetrievalPlan {
     return p;
   }();
   int jobs_per_object = 0;         ///< DetectSettings::retrieval_jobs_per_object; 0 = every job
+  int screen_keep = 0;             ///< DetectSettings::retrieval_screen_keep; 0 = no screen
   bool acceptable_only = false;    ///< DetectSettings::retrieval_acceptable_only
   bool seed_depth = false;         ///< DetectSettings::seed_depth
   bool align_inplane = false;      ///< DetectSettings::retrieval_align_inplane
@@ -63,7 +65,8 @@ inline float job_image_axis(const Job& job, const LabelImage& labels, float min_
   return principal_angle(a, b, c);
 }
 
-/// Per segment label, per model: its best Job::retrieval_score over its pieces there, and their number.
+/// Per segment label, per model: its best Job::retrieval_score over its jobs there, and the number of
+/// pieces it cut the segment into (its jobs there that are not Job::half).
 struct SegmentModel {
   float score = -std::numeric_limits<float>::infinity();
   int pieces = 0;
@@ -74,7 +77,8 @@ inline SegmentModels segment_models(const std::vector<Job>& jobs) {
   SegmentModels seen;
   for (const Job& j : jobs) {
     SegmentModel& m = seen[j.label][j.model];
-    m.score = std::max(m.score, j.retrieval_score), ++m.pieces;
+    m.score = std::max(m.score, j.retrieval_score);
+    m.pieces += !j.half;  // the halves are alternatives to the whole, not more objects
   }
   return seen;
 }
@@ -83,7 +87,7 @@ inline SegmentModels segment_models(const std::vector<Job>& jobs) {
 /// any model cut it into), at most `of`.
 inline std::size_t kept_of(const std::map<int, SegmentModel>& models, int n, std::size_t of) {
   int objects = std::numeric_limits<int>::max();
-  for (const auto& [model, m] : models) objects = std::min(objects, m.pieces);
+  for (const auto& [model, m] : models) objects = std::min(objects, std::max(m.pieces, 1));  // halves only: 1
   return std::min(of, std::size_t(n) * std::size_t(objects));
 }
 
@@ -124,8 +128,8 @@ inline void keep_best_jobs(std::vector<Job>& jobs, int n) {
 }
 
 /// Every job's Job::retrieval_score from a coarse search: the plan's rotations (align_inplane: started from
-/// the long axis of the job's pixels) at the middle of the job's depths through the first pass, against
-/// the jobs' own targets. The best of its hypotheses that show
+/// the long axis of the job's pixels) at the middle of the job's depths, screened (screen_keep), through
+/// the first pass, against the jobs' own targets. The best of its hypotheses that show
 /// enough points (keep_best's rule) as the explanation would pick it: the readings it explains, scaled by
 /// 1e-3 unless acceptable (detect_colour_mismatch); -infinity if none shows enough points.
 template <class Backend>
@@ -146,6 +150,11 @@ void coarse_scores(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
   std::vector<std::size_t> points_estimate;
   std::vector<Hypothesis> hyps = propose(ctx, middle, plan.coarse, points_estimate, scratch);
   const std::vector<int> stride = first_pass_strides(s, jobs, targets.group_points);
+  if (plan.screen_keep > 0 && s.screen.stride > 0) {  // exactly the best screen_keep of a screened job
+    ScreenSettings sc = s.screen;
+    sc.min_keep = plan.screen_keep, sc.keep_fraction = 0.f;
+    screen(ctx, sc, jobs, targets.group_points, stride, hyps, points_estimate, scratch);
+  }
   const std::vector<CostBreakdown> costs = first_pass(ctx, stride, hyps, points_estimate, scratch);
   for (Job& j : jobs)
     j.retrieval_score = -std::numeric_limits<float>::infinity(), j.retrieval_acceptable = false;

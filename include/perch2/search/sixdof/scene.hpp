@@ -159,6 +159,11 @@ std::vector<std::size_t> explain_segments(const Shared<Backend>& sh, const RgbdF
       if (segment_points[k] >= std::size_t(ss.min_segment_points))
         add_scene_jobs(sh, frame, segments, int(k), scene.model_of_object[i], pieces, jobs);
   }
+  if (ss.half_jobs && scene.retrieval.jobs_per_object > 0 && scene.retrieval.coarse.viewpoints > 0) {
+    const std::size_t before = jobs.size();
+    add_half_jobs(sh, frame, segments, pieces, jobs);  // ranked with the rest by the retrieval
+    out.halves += jobs.size() - before;
+  }
   if (ss.min_colour_fraction > 0 && s.cost.use_color) {
     const std::size_t before = jobs.size();
     screen_colours(sh, frame, scene.labels, jobs);

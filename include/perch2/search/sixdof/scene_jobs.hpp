@@ -2,7 +2,8 @@
 // of a compatible size (SceneSettings: not smaller than min_area_fraction of its smallest face, not larger
 // than max_area_faces of its largest), around the segment's box, or, if the segment is too wide or too
 // large for one object (two touching, a distractor on top), around each of its model-sized pieces
-// (segment_pieces: k-means on its readings). Colour screening drops the jobs whose readings show colours
+// (segment_pieces: k-means on its readings); a model that takes whole a segment another model's rule cut also
+// gets a job on each half of it (add_half_jobs). Colour screening drops the jobs whose readings show colours
 // the model lacks (screen_colours), before anything is rendered; detect() then keeps on each segment only the
 // models that fit it best (retrieval.hpp). Each job's GICP targets and J_o's points are its segment and
 // the nearby small ones an occluder may have cut from it (group_segments, group_clouds), or its piece's
@@ -90,6 +91,7 @@ struct SegmentPiece {
   std::vector<std::int32_t> pixels;  ///< full-resolution indices
   Eigen::Vector4i box_xywh{0, 0, 0, 0};
   std::vector<float> depths_m;  ///< its valid readings, ascending
+  float area_m2 = 0;            ///< surface area its readings see, m^2 (as FrameSegment::area_m2)
 };
 
 /// The pieces of segment k cut in n parts, per (k, n): every model that cuts a segment alike shares them.
@@ -109,7 +111,10 @@ inline std::vector<SegmentPiece> cut_segment(const RgbdFrame& frame, const Label
       const int u = i % w, v = i / w;
       x0 = std::min(x0, u), x1 = std::max(x1, u), y0 = std::min(y0, v), y1 = std::max(y1, v);
       const float z = frame.depth_m.data[std::size_t(i)];
-      if (z > 0 && std::isfinite(z)) p.depths_m.push_back(z);
+      if (z > 0 && std::isfinite(z)) {
+        p.depths_m.push_back(z);
+        p.area_m2 += z * z / (frame.camera.fx * frame.camera.fy);
+      }
     }
     std::sort(p.depths_m.begin(), p.depths_m.end());
     p.box_xywh = {x0, y0, x1 - x0, y1 - y0};
@@ -196,6 +201,46 @@ void add_scene_jobs(const Shared<Backend>& sh, const RgbdFrame& frame, const Fra
     // A piece: GICP against its own readings, not its neighbour's in the segment.
     if (cut->second.size() > 1) job.piece_pixels = piece.pixels;
     jobs.push_back(std::move(job));
+  }
+}
+
+/// A segment that some model's size rule cut into pieces (add_scene_jobs) may hold two objects even where
+/// a larger model's rule takes it whole (a bowl merged with a distractor behind it): each model searched
+/// on such a segment whole also gets a job on each half of it (the segment cut in 2, Job::half) that is
+/// large enough to show it (min_area_fraction of its smallest face). Without them the model's one job
+/// starts at the merged segment's box and depth, and its smaller same-print copy, cut to the object's
+/// piece, was taken for it.
+template <class Backend>
+void add_half_jobs(const Shared<Backend>& sh, const RgbdFrame& frame, const FrameSegments& segments,
+                   PieceCache& cache, std::vector<Job>& jobs) {
+  const SceneSettings& ss = sh.settings.scene;
+  std::set<int> cut;  // segments some model cut into pieces
+  for (const auto& [key, pieces] : cache)
+    if (key.second > 1) cut.insert(key.first);
+  const std::size_t n = jobs.size();
+  for (std::size_t j = 0; j < n; ++j) {
+    const int k = jobs[j].label - 1;
+    if (!jobs[j].piece_pixels.empty() || !cut.count(k)) continue;
+    auto halves = cache.find({k, 2});
+    if (halves == cache.end())
+      halves = cache
+                   .emplace(std::make_pair(k, 2),
+                            cut_segment(frame, segments.labels, segments.segments[std::size_t(k)], 2))
+                   .first;
+    if (halves->second.size() < 2) continue;
+    const int model = jobs[j].model;
+    for (const SegmentPiece& piece : halves->second) {
+      if (piece.depths_m.empty() ||
+          piece.area_m2 < ss.min_area_fraction * sh.face_m2[std::size_t(model)].first)
+        continue;
+      Job job;
+      job.model = model, job.label = jobs[j].label, job.half = true;
+      job.box_xywh = piece.box_xywh;
+      job.depths =
+          proposal_depths_sorted(piece.depths_m, sh.models[std::size_t(model)].mesh, sh.settings.proposals);
+      job.piece_pixels = piece.pixels;
+      jobs.push_back(std::move(job));
+    }
   }
 }
 

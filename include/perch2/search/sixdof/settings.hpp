@@ -105,7 +105,16 @@ struct SceneSettings {
   /// distractor can, a block under one, found), 7,800 hypotheses instead of 7,000; 0.7 91.8 / 85.7 with
   /// 8,600.
   float piece_area_faces = 1.f;
-  int max_pieces = 6;           ///< see above (>= 1)
+  int max_pieces = 6;  ///< see above (>= 1)
+  /// A segment some model was cut into pieces for may be two objects: a model that takes it whole also
+  /// gets a job on each of its halves (add_half_jobs in perch2/search/sixdof/scene_jobs.hpp), where the
+  /// retrieval ranks the jobs (detect(); estimate_scene() with retrieval_jobs_per_object). Generated
+  /// decoy sets (32 models, 12 images each, 2-vCPU AMD EPYC VM, DetectSettings::retrieval_screen_keep 0),
+  /// bop24_mAP without -> with: seed 241 (where a bowl merged with a distractor was taken for its 0.8x
+  /// copy) 0.769 -> 0.774, 242 0.749 -> 0.838, 243 0.785 -> 0.825, 62 % more jobs for the retrieval.
+  /// Searched in full without the retrieval they cost bench_sixdof --masks none (20 scenes, objects
+  /// given) 50 % more time for nothing (ADD-S / ADD(-S) AUC 98.7 / 95.3 -> 98.7 / 94.8, 3.9 -> 5.9 s).
+  bool half_jobs = true;
   int min_segment_points = 20;  ///< segments with fewer observed points (observed grid) get no job
   /// See above, in [0, 1]. On bench_sixdof --masks none (20 scenes): 0.7 gave ADD-S / ADD(-S) AUC
   /// 87.0 / 81.8, 0.55 89.0 / 83.4 (two partly hidden objects found, none placed on a distractor), 0.4

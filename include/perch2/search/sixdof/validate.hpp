@@ -109,14 +109,15 @@ inline void validate_scene(const SixDofSettings& s, const std::vector<SixDofMode
 inline void validate_detect(const DetectSettings& d) {
   if (d.max_per_model < 1 || d.max_per_frame < 1 || !(d.min_score >= 0 && d.min_score <= 1) ||
       !(d.max_colour_mismatch >= 0 && d.max_colour_mismatch <= 1) || d.retrieval_jobs_per_object < 0 ||
-      d.retrieval_viewpoints < 0 || d.retrieval_inplane_rotations < 1 ||
+      d.retrieval_viewpoints < 0 || d.retrieval_inplane_rotations < 1 || d.retrieval_screen_keep < 0 ||
       !(d.retrieval_align_min_elongation >= 1) ||
       !(std::isfinite(d.half_evidence_readings) && d.half_evidence_readings >= 0) ||
       !(d.max_below_plane_m >= 0))
     throw InvalidInput(
         "DetectSettings",
         "needs max_per_model >= 1, max_per_frame >= 1, retrieval_jobs_per_object >= 0, "
-        "retrieval_viewpoints >= 0, retrieval_inplane_rotations >= 1, retrieval_align_min_elongation >= 1, "
+        "retrieval_viewpoints >= 0, retrieval_inplane_rotations >= 1, retrieval_screen_keep >= 0, "
+        "retrieval_align_min_elongation >= 1, "
         "min_score and "
         "max_colour_mismatch in [0, 1], half_evidence_readings finite and >= 0, "
         "max_below_plane_m >= 0 (inf: no test)");
