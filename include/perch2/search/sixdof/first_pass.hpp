@@ -107,10 +107,11 @@ inline bool screened(const SixDofSettings& s, const ScreenSettings& sc, int firs
   return expected >= double(sc.min_points);
 }
 
-/// The screen (`sc`: SixDofSettings::screen, or the retrieval's): the proposals of every screened job (screened(), and more than min_keep
-/// of them) rendered at screen.stride, moved by the ICP passes against the first pass' targets and scored
-/// with first_pass_cost; each such job keeps its best keep_fraction (at least min_keep; those showing too
-/// few points rank last) at the poses the screen reached. `hyps` stays grouped by job, in order.
+/// The screen (`sc`: SixDofSettings::screen, or the retrieval's): the proposals of every screened job
+/// (screened(), and more than min_keep of them) rendered at screen.stride, moved by the ICP passes against
+/// the first pass' targets and scored with first_pass_cost; each such job keeps its best keep_fraction (at
+/// least min_keep; those showing too few points rank last) at the poses the screen reached. `hyps` stays
+/// grouped by job, in order.
 template <class Backend>
 void screen(const Context<Backend>& ctx, const ScreenSettings& sc, const std::vector<Job>& jobs,
             const std::vector<std::size_t>& segment_points, const std::vector<int>& first_stride,

@@ -172,6 +172,31 @@ void screen_colours(const Shared<Backend>& sh, const RgbdFrame& frame, const Lab
   jobs = std::move(kept);
 }
 
+/// Segment k cut in `pieces` parts (cut_segment), from the cache or cut now and kept there.
+inline const std::vector<SegmentPiece>& cut_of(const RgbdFrame& frame, const FrameSegments& segments, int k,
+                                               int pieces, PieceCache& cache) {
+  auto cut = cache.find({k, pieces});
+  if (cut == cache.end())
+    cut = cache
+              .emplace(std::make_pair(k, pieces),
+                       cut_segment(frame, segments.labels, segments.segments[std::size_t(k)], pieces))
+              .first;
+  return cut->second;
+}
+
+/// The job of `model` around `piece` of segment k (its box, proposal depths over its readings); with
+/// `own_targets`, GICP against the piece's own readings, not its neighbour's in the segment.
+template <class Backend>
+Job piece_job(const Shared<Backend>& sh, int model, int k, const SegmentPiece& piece, bool own_targets) {
+  Job job;
+  job.model = model, job.label = std::int32_t(k + 1);  // segment: group_segments()
+  job.box_xywh = piece.box_xywh;
+  job.depths =
+      proposal_depths_sorted(piece.depths_m, sh.models[std::size_t(model)].mesh, sh.settings.proposals);
+  if (own_targets) job.piece_pixels = piece.pixels;
+  return job;
+}
+
 /// The scene jobs of `model` on segment k (SceneSettings): none if the segment is too small or too
 /// large to hold it, one around the segment's box, or one per model-sized piece of a larger segment
 /// (k-means on its readings).
@@ -183,24 +208,15 @@ void add_scene_jobs(const Shared<Backend>& sh, const RgbdFrame& frame, const Fra
   const auto [small_face, large_face] = sh.face_m2[std::size_t(model)];
   if (seg.area_m2 < ss.min_area_fraction * small_face) return;
   if (seg.area_m2 > ss.max_area_faces * large_face) return;  // background for this model
-  const Mesh& mesh = sh.models[std::size_t(model)].mesh;
   const int pieces = seg.extent_m > ss.piece_extent_factor * sh.size_m[std::size_t(model)] ||
                              seg.area_m2 > ss.piece_area_faces * large_face
                          ? std::clamp(int(std::ceil(seg.area_m2 / large_face)), 2, std::max(ss.max_pieces, 2))
                          : 1;
-  auto cut = cache.find({k, pieces});
-  if (cut == cache.end())
-    cut = cache.emplace(std::make_pair(k, pieces), cut_segment(frame, segments.labels, seg, pieces)).first;
-  for (const SegmentPiece& piece : cut->second) {
+  const std::vector<SegmentPiece>& cut = cut_of(frame, segments, k, pieces, cache);
+  for (const SegmentPiece& piece : cut) {
     if (piece.depths_m.empty())
       throw InvalidInput("segment " + std::to_string(k + 1), "has no valid depth reading inside it");
-    Job job;
-    job.model = model, job.label = std::int32_t(k + 1);  // segment: group_segments()
-    job.box_xywh = piece.box_xywh;
-    job.depths = proposal_depths_sorted(piece.depths_m, mesh, sh.settings.proposals);
-    // A piece: GICP against its own readings, not its neighbour's in the segment.
-    if (cut->second.size() > 1) job.piece_pixels = piece.pixels;
-    jobs.push_back(std::move(job));
+    jobs.push_back(piece_job(sh, model, k, piece, cut.size() > 1));
   }
 }
 
@@ -221,25 +237,15 @@ void add_half_jobs(const Shared<Backend>& sh, const RgbdFrame& frame, const Fram
   for (std::size_t j = 0; j < n; ++j) {
     const int k = jobs[j].label - 1;
     if (!jobs[j].piece_pixels.empty() || !cut.count(k)) continue;
-    auto halves = cache.find({k, 2});
-    if (halves == cache.end())
-      halves = cache
-                   .emplace(std::make_pair(k, 2),
-                            cut_segment(frame, segments.labels, segments.segments[std::size_t(k)], 2))
-                   .first;
-    if (halves->second.size() < 2) continue;
+    const std::vector<SegmentPiece>& halves = cut_of(frame, segments, k, 2, cache);
+    if (halves.size() < 2) continue;
     const int model = jobs[j].model;
-    for (const SegmentPiece& piece : halves->second) {
+    for (const SegmentPiece& piece : halves) {
       if (piece.depths_m.empty() ||
           piece.area_m2 < ss.min_area_fraction * sh.face_m2[std::size_t(model)].first)
         continue;
-      Job job;
-      job.model = model, job.label = jobs[j].label, job.half = true;
-      job.box_xywh = piece.box_xywh;
-      job.depths =
-          proposal_depths_sorted(piece.depths_m, sh.models[std::size_t(model)].mesh, sh.settings.proposals);
-      job.piece_pixels = piece.pixels;
-      jobs.push_back(std::move(job));
+      jobs.push_back(piece_job(sh, model, k, piece, true));
+      jobs.back().half = true;
     }
   }
 }
